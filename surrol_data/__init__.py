@@ -1,0 +1,1 @@
+"""surrol_data."""

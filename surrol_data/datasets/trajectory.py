@@ -1,0 +1,113 @@
+"""One episode in memory: what a collector or a policy rollout produced, before or after it is on disk.
+
+Shapes (T = number of actions taken):
+
+* ``observation`` (T+1, obs_dim), ``achieved_goal`` (T+1, goal_dim), ``desired_goal`` (T+1, goal_dim):
+  float32, the reset observation first. Units as in :mod:`surrol_data.envs.units`.
+* ``action`` (T, act_dim) float32 in [-1, 1]; ``reward`` (T,) float32; ``success`` (T,) bool (the
+  ``info["is_success"]`` after each action); ``terminated`` (T,) bool.
+* ``tip_position`` (T+1, n_arms, 3) float32: tool-tip positions in metres (world frame) — what the
+  proficiency metrics measure. ``jaw_angle`` (T+1, n_arms) float32, radians.
+* ``flags``: per-step device flags, name -> (T,) bool, e.g. ``clutch``, ``jaw_button``. Every trajectory
+  carries the same two names so datasets of different sources merge.
+* ``images``: optional camera name -> (T+1, H, W, 3) uint8.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+DEVICE_FLAGS = ("clutch", "jaw_button")
+
+
+@dataclass
+class Trajectory:
+    observation: np.ndarray
+    achieved_goal: np.ndarray
+    desired_goal: np.ndarray
+    action: np.ndarray
+    reward: np.ndarray
+    success: np.ndarray
+    terminated: np.ndarray
+    tip_position: np.ndarray
+    jaw_angle: np.ndarray
+    flags: dict[str, np.ndarray] = field(default_factory=dict)
+    images: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        n = len(self.action)
+        for name in ("observation", "achieved_goal", "desired_goal", "tip_position", "jaw_angle"):
+            if len(getattr(self, name)) != n + 1:
+                raise ValueError(f"Trajectory.{name} has {len(getattr(self, name))} rows, expected T+1 = {n + 1}")
+        for name in ("reward", "success", "terminated"):
+            if len(getattr(self, name)) != n:
+                raise ValueError(f"Trajectory.{name} has {len(getattr(self, name))} rows, expected T = {n}")
+        for flag in DEVICE_FLAGS:
+            self.flags.setdefault(flag, np.zeros(n, dtype=bool))
+        for name, values in self.flags.items():
+            if len(values) != n:
+                raise ValueError(f"Trajectory.flags[{name!r}] has {len(values)} rows, expected T = {n}")
+
+    def __len__(self) -> int:
+        return len(self.action)
+
+    @property
+    def is_success(self) -> bool:
+        """Success at any step (the collectors' keep rule and the 'any-time' convention)."""
+        return bool(np.any(self.success))
+
+    @property
+    def final_success(self) -> bool:
+        """Success at the last step (DEX/baselines convention for evaluation)."""
+        return bool(self.success[-1]) if len(self.success) else False
+
+
+class TrajectoryBuilder:
+    """Accumulates one step at a time and returns a :class:`Trajectory`."""
+
+    def __init__(self, obs: dict, tip_position: np.ndarray, jaw_angle: np.ndarray, image: dict | None = None):
+        self._obs = {k: [np.asarray(v, np.float32)] for k, v in obs.items()}
+        self._tip = [np.asarray(tip_position, np.float32).reshape(-1, 3)]
+        self._jaw = [np.asarray(jaw_angle, np.float32).reshape(-1)]
+        self._images = {k: [v] for k, v in (image or {}).items()}
+        self._action: list[np.ndarray] = []
+        self._reward: list[float] = []
+        self._success: list[bool] = []
+        self._terminated: list[bool] = []
+        self._flags: dict[str, list[bool]] = {f: [] for f in DEVICE_FLAGS}
+
+    def add(self, action, obs: dict, reward: float, success: bool, terminated: bool,
+            tip_position, jaw_angle, flags: dict | None = None, image: dict | None = None) -> None:
+        self._action.append(np.asarray(action, np.float32))
+        for k, v in obs.items():
+            self._obs[k].append(np.asarray(v, np.float32))
+        self._reward.append(float(reward))
+        self._success.append(bool(success))
+        self._terminated.append(bool(terminated))
+        self._tip.append(np.asarray(tip_position, np.float32).reshape(-1, 3))
+        self._jaw.append(np.asarray(jaw_angle, np.float32).reshape(-1))
+        flags = flags or {}
+        for name in self._flags:
+            self._flags[name].append(bool(flags.get(name, False)))
+        for k, v in (image or {}).items():
+            self._images[k].append(v)
+
+    def __len__(self) -> int:
+        return len(self._action)
+
+    def build(self) -> Trajectory:
+        return Trajectory(
+            observation=np.stack(self._obs["observation"]),
+            achieved_goal=np.stack(self._obs["achieved_goal"]),
+            desired_goal=np.stack(self._obs["desired_goal"]),
+            action=np.asarray(self._action, np.float32).reshape(len(self._action), -1),
+            reward=np.asarray(self._reward, np.float32),
+            success=np.asarray(self._success, bool),
+            terminated=np.asarray(self._terminated, bool),
+            tip_position=np.stack(self._tip),
+            jaw_angle=np.stack(self._jaw),
+            flags={k: np.asarray(v, bool) for k, v in self._flags.items()},
+            images={k: np.stack(v) for k, v in self._images.items()},
+        )
