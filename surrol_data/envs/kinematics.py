@@ -1,0 +1,143 @@
+"""dVRK PSM kinematics: modified-DH forward kinematics and a closed-form inverse.
+
+All lengths here are *real* metres (multiply by ``units.SCALING`` for the simulation). Poses are 4×4
+homogeneous matrices expressed in the remote-centre-of-motion (RCM) frame, whose origin is the RCM
+point; with all joints at zero the shaft points along −z of that frame.
+
+Joint order: outer yaw, outer pitch, insertion (prismatic, m), tool roll, wrist pitch, wrist yaw.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+# Modified DH rows (alpha_{i-1}, a_{i-1}, theta offset, d offset, prismatic?) — dVRK large needle driver.
+PSM_DH = (
+    (+np.pi / 2, 0.0, +np.pi / 2, 0.0, False),
+    (-np.pi / 2, 0.0, -np.pi / 2, 0.0, False),
+    (+np.pi / 2, 0.0, 0.0, -0.4318, True),
+    (0.0, 0.0, 0.0, 0.4162, False),
+    (-np.pi / 2, 0.0, -np.pi / 2, 0.0, False),
+    (-np.pi / 2, 0.0091, -np.pi / 2, 0.0, False),
+)
+# Wrist yaw frame → tool tip: 10.2 mm along the wrist-yaw y axis, axes permuted to the dVRK tip convention.
+TOOL_TIP_OFFSET = np.array([[0.0, -1.0, 0.0, 0.0],
+                            [0.0, 0.0, 1.0, 0.0102],
+                            [-1.0, 0.0, 0.0, 0.0],
+                            [0.0, 0.0, 0.0, 1.0]])
+WRIST_LENGTH = 0.0091
+TIP_LENGTH = 0.0102
+SHAFT_END_OFFSET = 0.4318 - 0.4162   # insertion at which the wrist-pitch axis sits on the RCM
+
+# Software joint limits (rad, m) and the jaw (rad).
+PSM_LOWER = np.deg2rad([-91.0, -53.0, 0.0, -260.0, -80.0, -80.0])
+PSM_UPPER = np.deg2rad([91.0, 53.0, 0.0, 260.0, 80.0, 80.0])
+PSM_LOWER[2], PSM_UPPER[2] = 0.0, 0.24
+JAW_LIMITS = (np.deg2rad(-20.0), np.deg2rad(80.0))
+
+
+def _rot_x(a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[1, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1.0]])
+
+
+def _rot_z(a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]])
+
+
+def _trans(x: float = 0.0, z: float = 0.0) -> np.ndarray:
+    t = np.eye(4)
+    t[0, 3], t[2, 3] = x, z
+    return t
+
+
+def dh_fixed_transform(row) -> np.ndarray:
+    """The joint-independent part of a modified-DH row: RotX(alpha) · TransX(a) · (offset about/along z)."""
+    alpha, a, theta_off, d_off, _ = row
+    return _rot_x(alpha) @ _trans(x=a) @ _rot_z(theta_off) @ _trans(z=d_off)
+
+
+def dh_joint_transform(row, q: float) -> np.ndarray:
+    prismatic = row[4]
+    return _trans(z=q) if prismatic else _rot_z(q)
+
+
+def psm_link_frames(q) -> list[np.ndarray]:
+    """Frames 1..6 of the PSM in the RCM frame (frame 6 = wrist yaw)."""
+    frames, t = [], np.eye(4)
+    for row, qi in zip(PSM_DH, q):
+        t = t @ dh_fixed_transform(row) @ dh_joint_transform(row, qi)
+        frames.append(t)
+    return frames
+
+
+def psm_fk(q) -> np.ndarray:
+    """Tool-tip pose (4×4, RCM frame, metres) for joints ``q`` (6,)."""
+    return psm_link_frames(q)[-1] @ TOOL_TIP_OFFSET
+
+
+@dataclass(frozen=True)
+class IKResult:
+    q: np.ndarray
+    within_limits: bool
+
+
+def psm_ik(tip_pose: np.ndarray) -> IKResult:
+    """Closed-form inverse kinematics of the PSM tool tip (the natural, wrist-outward solution).
+
+    Geometry: the wrist-yaw origin p6 and axis z6 follow from the tip pose. The shaft passes through the
+    RCM (origin) and the wrist-pitch point p5, and p5 lies 9.1 mm from p6 in the plane through the
+    origin spanned by the shaft and z6 — so p5 is p6 moved towards the RCM, perpendicular to z6.
+    Insertion is |p5| plus the shaft-end offset; the outer yaw/pitch follow from the shaft direction and
+    the wrist joints from R3ᵀ·R6 (the DH structure makes them an Euler-like extraction).
+    """
+    r6 = tip_pose[:3, :3] @ TOOL_TIP_OFFSET[:3, :3].T
+    p6 = tip_pose[:3, 3] - r6 @ TOOL_TIP_OFFSET[:3, 3]
+    z6 = r6[:, 2]
+    radial = p6 - np.dot(p6, z6) * z6
+    radial_norm = np.linalg.norm(radial)
+    if radial_norm < 1e-9:
+        raise ValueError("tip pose is singular for the PSM: the wrist-yaw axis passes through the RCM")
+    p5 = p6 - WRIST_LENGTH * radial / radial_norm
+    depth = np.linalg.norm(p5)
+    s = p5 / depth
+    q3 = depth + SHAFT_END_OFFSET
+    q2 = np.arcsin(np.clip(-s[1], -1.0, 1.0))
+    q1 = np.arctan2(s[0], -s[2])
+    r3 = psm_link_frames([q1, q2, q3, 0.0, 0.0, 0.0])[2][:3, :3]
+    m = r3.T @ r6
+    q5 = np.arcsin(np.clip(-m[2, 2], -1.0, 1.0))
+    q4 = np.arctan2(m[1, 2], m[0, 2])
+    q6 = np.arctan2(m[2, 0], m[2, 1])
+    q = np.array([q1, q2, q3, q4, q5, q6])
+    ok = bool(np.all(q >= PSM_LOWER - 1e-9) and np.all(q <= PSM_UPPER + 1e-9))
+    return IKResult(q=q, within_limits=ok)
+
+
+def pose_from(position, rotation) -> np.ndarray:
+    t = np.eye(4)
+    t[:3, :3] = rotation
+    t[:3, 3] = position
+    return t
+
+
+def rot_z3(a: float) -> np.ndarray:
+    c, s = np.cos(a), np.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def tool_down_rotation(yaw: float) -> np.ndarray:
+    """World rotation of the tip frame with the tool pointing straight down (tip z = −world z) and yaw ``yaw``.
+
+    The tip frame's x axis is the jaw-opening direction; yaw rotates it about the world vertical.
+    """
+    down = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
+    return rot_z3(yaw) @ down
+
+
+def yaw_of_tool_down(rotation: np.ndarray) -> float:
+    """Inverse of :func:`tool_down_rotation` for the yaw (angle of the tip x axis about world z)."""
+    return float(np.arctan2(rotation[1, 0], rotation[0, 0]))

@@ -1,0 +1,149 @@
+"""Scene objects built from primitives (boxes, capsules), with the reference's dimensions and masses.
+
+Sizes are given in real millimetres/metres and scaled to the simulation here. Every builder takes the
+client explicitly and returns the PyBullet body id.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pybullet as pb
+
+from surrol_data.envs import physics
+from surrol_data.envs.units import SCALING
+
+GREY = (0.75, 0.75, 0.75, 1.0)
+DARK = (0.25, 0.25, 0.28, 1.0)
+TABLE_COLOUR = (0.62, 0.52, 0.42, 1.0)
+PAD_COLOUR = (0.85, 0.45, 0.45, 1.0)
+NEEDLE_COLOUR = (0.85, 0.85, 0.9, 1.0)
+
+# Table: collision box 0.416 × 0.538 × 0.05 m, top at z = 0.675 m.
+TABLE_CENTRE = np.array([0.5, 0.0, 0.65])
+TABLE_HALF_EXTENTS = np.array([0.208, 0.269, 0.025])
+TABLE_TOP_Z = 0.675
+
+# Tray with pad (NeedleReach/NeedlePick): base 120 × 196 × 0.362 mm, walls 22 mm tall, pad 101 × 170 × 5.2 mm.
+TRAY_ORIGIN = np.array([0.55, 0.0, 0.6751])
+PAD_TOP_Z = TRAY_ORIGIN[2] + 0.0036 + 0.0026
+
+# Needle: half circle of radius 20 mm opening towards +x of its frame, wire radius 0.62 mm, 10 g.
+NEEDLE_RADIUS = 0.020
+NEEDLE_WIRE_RADIUS = 0.00062
+NEEDLE_MASS = 0.01
+NEEDLE_SEGMENTS = 10  # even: a capsule joint sits exactly at the mid-arc waypoint
+NEEDLE_COM = np.array([-2 * NEEDLE_RADIUS / np.pi, 0.0, 0.0])
+# Waypoints in the needle frame (metres): 0 = arc centre, 1 = arc midpoint, 2/3 and 4/5 symmetric pairs.
+NEEDLE_WAYPOINTS = np.array([
+    [0.0, 0.0, 0.0],
+    [-0.020, 0.0, 0.0],
+    [-0.0141, -0.0141, 0.0], [-0.0141, 0.0141, 0.0],
+    [-0.0100, -0.0173, 0.0], [-0.0100, 0.0173, 0.0],
+])
+
+
+def _box(client, half_extents_m, colour, mass=0.0, position_m=(0, 0, 0), friction=physics.OBJECT_FRICTION) -> int:
+    he = np.asarray(half_extents_m) * SCALING
+    col = client.createCollisionShape(pb.GEOM_BOX, halfExtents=he.tolist())
+    vis = client.createVisualShape(pb.GEOM_BOX, halfExtents=he.tolist(), rgbaColor=colour)
+    body = client.createMultiBody(mass, col, vis, (np.asarray(position_m) * SCALING).tolist())
+    client.changeDynamics(body, -1, lateralFriction=friction)
+    return body
+
+
+def make_table(client) -> int:
+    return _box(client, TABLE_HALF_EXTENTS, TABLE_COLOUR, position_m=TABLE_CENTRE)
+
+
+def make_tray(client, with_pad: bool, origin_m=TRAY_ORIGIN) -> int:
+    """A static tray: thin base, four low walls and (optionally) a foam pad, as one compound body."""
+    mm = 1e-3
+    parts = [  # (half extents, centre) in metres, tray frame
+        ((60 * mm, 98 * mm, 0.181 * mm), (0.0, 0.0, 0.0)),
+        ((60 * mm, 1.5 * mm, 11 * mm), (0.0, 95 * mm, 11 * mm)),
+        ((60 * mm, 1.5 * mm, 11 * mm), (0.0, -95 * mm, 11 * mm)),
+        ((1.5 * mm, 98 * mm, 11 * mm), (58 * mm, 0.0, 11 * mm)),
+        ((1.5 * mm, 98 * mm, 11 * mm), (-58 * mm, 0.0, 11 * mm)),
+    ]
+    colours = [GREY] * 5
+    if with_pad:
+        parts.append(((50.5 * mm, 85 * mm, 2.6 * mm), (0.0, 0.0, 3.6 * mm)))
+        colours.append(PAD_COLOUR)
+    half = [(np.asarray(h) * SCALING).tolist() for h, _ in parts]
+    centres = [(np.asarray(c) * SCALING).tolist() for _, c in parts]
+    n = len(parts)
+    col = client.createCollisionShapeArray([pb.GEOM_BOX] * n, halfExtents=half, collisionFramePositions=centres)
+    vis = client.createVisualShapeArray([pb.GEOM_BOX] * n, halfExtents=half, visualFramePositions=centres,
+                                        rgbaColors=colours)
+    body = client.createMultiBody(0.0, col, vis, (np.asarray(origin_m) * SCALING).tolist())
+    client.changeDynamics(body, -1, lateralFriction=physics.OBJECT_FRICTION)
+    return body
+
+
+@dataclass(frozen=True)
+class NeedleGeometry:
+    positions: list      # capsule centres (scaled, needle frame)
+    orientations: list   # capsule orientations (quaternions): capsule z along the arc tangent
+    length: float        # capsule cylinder length (scaled)
+
+
+def _needle_geometry(client) -> NeedleGeometry:
+    # Capsules whose ends meet on the arc; the arc spans angles 90°..270° (from +y through −x to −y).
+    angles = np.linspace(np.pi / 2, 3 * np.pi / 2, NEEDLE_SEGMENTS + 1)
+    pts = np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], axis=1) * NEEDLE_RADIUS * SCALING
+    positions, orientations = [], []
+    for a, b in zip(pts[:-1], pts[1:]):
+        d = b - a
+        positions.append(((a + b) / 2).tolist())
+        # Rotate the capsule's z axis onto the chord direction (a rotation about world z then x).
+        yaw = np.arctan2(d[1], d[0])
+        orientations.append(client.getQuaternionFromEuler([0.0, np.pi / 2, yaw]))
+    length = float(np.linalg.norm(pts[1] - pts[0]))
+    return NeedleGeometry(positions, orientations, length)
+
+
+def make_needle(client) -> int:
+    g = _needle_geometry(client)
+    n = len(g.positions)
+    r = NEEDLE_WIRE_RADIUS * SCALING
+    col = client.createCollisionShapeArray([pb.GEOM_CAPSULE] * n, radii=[r] * n, lengths=[g.length] * n,
+                                           collisionFramePositions=g.positions,
+                                           collisionFrameOrientations=g.orientations)
+    vis = client.createVisualShapeArray([pb.GEOM_CAPSULE] * n, radii=[r] * n, lengths=[g.length] * n,
+                                        visualFramePositions=g.positions,
+                                        visualFrameOrientations=g.orientations,
+                                        rgbaColors=[NEEDLE_COLOUR] * n)
+    # The centre of mass sits on the symmetry axis at 2R/π from the arc centre; PyBullet reports the base
+    # pose at the centre of mass, so use set_needle_pose/needle_pose to speak in needle-frame terms.
+    body = client.createMultiBody(NEEDLE_MASS, col, vis, [0, 0, 0],
+                                  baseInertialFramePosition=(NEEDLE_COM * SCALING).tolist())
+    client.changeDynamics(body, -1, lateralFriction=physics.OBJECT_FRICTION, rollingFriction=0.0,
+                          spinningFriction=0.001)
+    return body
+
+
+def set_needle_pose(client, body: int, position_m, yaw: float) -> None:
+    """Place the needle frame (arc centre) at ``position_m`` with heading ``yaw``, at rest."""
+    rot = np.array([[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
+    com = (np.asarray(position_m) + rot @ NEEDLE_COM) * SCALING
+    client.resetBasePositionAndOrientation(body, com.tolist(), client.getQuaternionFromEuler([0, 0, yaw]))
+    client.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0])
+
+
+def needle_pose(client, body: int) -> tuple[np.ndarray, np.ndarray]:
+    """(needle-frame origin in real metres, rotation matrix)."""
+    com, quat = client.getBasePositionAndOrientation(body)
+    rot = np.asarray(client.getMatrixFromQuaternion(quat)).reshape(3, 3)
+    return np.asarray(com) / SCALING - rot @ NEEDLE_COM, rot
+
+
+def needle_rest_height() -> float:
+    """Needle-frame z (real metres) when the needle lies flat on the pad."""
+    return PAD_TOP_Z + NEEDLE_WIRE_RADIUS
+
+
+def make_goal_marker(client, radius_m: float = 0.003, colour=(0.1, 0.9, 0.1, 0.8)) -> int:
+    vis = client.createVisualShape(pb.GEOM_SPHERE, radius=radius_m * SCALING, rgbaColor=colour)
+    return client.createMultiBody(0.0, -1, vis, [0, 0, 0])

@@ -1,0 +1,60 @@
+"""Physics constants (the one place for them) and the PyBullet client every scene is built in.
+
+The original SurRoL integrates one 0.2 s control period with 48 sub-steps of 1/240 s and 50 solver
+iterations. Our scene uses primitive collision shapes (boxes, capsules) instead of VHACD meshes and a
+coarser integration (``SUBSTEPS`` per control period), which keeps contacts stable at this scale
+(the PSM scene is 5× real size) while making a step ~20× cheaper; the benchmark in
+``benchmarks/env_throughput.py`` and the oracle tests watch both sides of that trade.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pybullet as pb
+from pybullet_utils.bullet_client import BulletClient
+
+from surrol_data.envs.units import CONTROL_PERIOD_S, SCALING
+
+GRAVITY = (0.0, 0.0, -9.81)
+SUBSTEPS = 8                      # physics steps per control period
+TIME_STEP = CONTROL_PERIOD_S / SUBSTEPS
+SOLVER_ITERATIONS = 20
+SETTLE_STEPS = 4                  # physics steps after a reset before the first observation
+
+# Joint PD control (PyBullet's position+velocity motor): gains, and limits on motor force and velocity.
+# Velocity limits are real units (rad/s; m/s for insertion), converted to the scaled scene where needed.
+PSM_POSITION_GAIN = 0.4
+PSM_VELOCITY_GAIN = 1.0
+PSM_MAX_FORCE = (60.0, 60.0, 60.0, 10.0, 10.0, 10.0)          # N·m / N (scaled scene)
+PSM_MAX_VELOCITY = (1.0, 1.0, 0.2, 3.0, 3.0, 3.0)             # rad/s, m/s (real)
+JAW_MAX_FORCE = 4.0
+JAW_MAX_VELOCITY = 4.0            # rad/s
+JAW_OPEN_RAD = np.deg2rad(40.0)   # the env's "open" jaw command
+JAW_CLOSED_RAD = 0.0
+
+# Contact and grasp.
+JAW_FRICTION = 1.0
+OBJECT_FRICTION = 1.0
+GRASP_CONTACT_DISTANCE_M = 0.0008   # a jaw within this distance of the object "touches" it (real metres)
+GRASP_MAX_FORCE = 20.0
+
+
+def scaled_velocity_limits() -> np.ndarray:
+    v = np.array(PSM_MAX_VELOCITY, dtype=np.float64)
+    v[2] *= SCALING
+    return v
+
+
+def make_client(gui: bool = False) -> BulletClient:
+    """A fresh PyBullet world with this project's physics settings (no module-level client anywhere)."""
+    client = BulletClient(connection_mode=pb.GUI if gui else pb.DIRECT)
+    configure(client)
+    if gui:
+        client.configureDebugVisualizer(pb.COV_ENABLE_GUI, 0)
+    return client
+
+
+def configure(client: BulletClient) -> None:
+    client.setGravity(*GRAVITY)
+    client.setPhysicsEngineParameter(fixedTimeStep=TIME_STEP, numSolverIterations=SOLVER_ITERATIONS,
+                                     numSubSteps=0, deterministicOverlappingPairs=1)

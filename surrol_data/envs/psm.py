@@ -1,0 +1,229 @@
+"""The dVRK patient-side manipulator (PSM) as a PyBullet multibody built from primitives.
+
+Link frames are the modified-DH frames of :mod:`surrol_data.envs.kinematics`, so PyBullet's joint
+positions *are* the DH joint values (insertion scaled). The base of the multibody is the RCM frame:
+the remote centre of motion is realised by the kinematic chain itself (yaw/pitch about the RCM point,
+insertion through it), as on the real robot.
+
+Link indices: 0 outer yaw, 1 outer pitch, 2 insertion, 3 tool roll, 4 wrist pitch, 5 wrist yaw (EEF),
+6/7 jaws, 8 tool tip (fixed). Only the wrist and the jaws collide.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pybullet as pb
+
+from surrol_data.envs import kinematics as kin
+from surrol_data.envs import physics
+from surrol_data.envs.units import SCALING
+
+ARM_JOINTS = (0, 1, 2, 3, 4, 5)
+JAW_JOINTS = (6, 7)
+TIP_LINK = 8
+EEF_LINK = 5
+# Joint value of each jaw = sign × jaw angle / 2: the +x blade opens towards +x (a negative rotation about z).
+_JAW_SIGNS = (-1.0, +1.0)
+
+_SHAFT_COLOUR = (0.55, 0.55, 0.6, 1.0)
+_WRIST_COLOUR = (0.3, 0.3, 0.35, 1.0)
+_JAW_COLOUR = (0.2, 0.2, 0.22, 1.0)
+
+# Jaw blade: 1.4 mm thick (opening direction), 10.2 mm long, 1.8 mm wide; offset so closed blades meet.
+_JAW_HALF = np.array([0.0007, 0.0051, 0.0009])
+
+
+def _matrix_to_quat(client, r: np.ndarray):
+    # PyBullet has no matrix→quaternion helper; go through a robust trace-based conversion.
+    m = r
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    if tr > 0:
+        s = np.sqrt(tr + 1.0) * 2
+        w, x, y, z = 0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        s = np.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2]) * 2
+        w, x, y, z = (m[2, 1] - m[1, 2]) / s, 0.25 * s, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s
+    elif m[1, 1] > m[2, 2]:
+        s = np.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2]) * 2
+        w, x, y, z = (m[0, 2] - m[2, 0]) / s, (m[0, 1] + m[1, 0]) / s, 0.25 * s, (m[1, 2] + m[2, 1]) / s
+    else:
+        s = np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2
+        w, x, y, z = (m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s
+    return [x, y, z, w]
+
+
+def matrix_to_quat(r: np.ndarray):
+    return _matrix_to_quat(None, r)
+
+
+def quat_to_matrix(client, q) -> np.ndarray:
+    return np.asarray(client.getMatrixFromQuaternion(q)).reshape(3, 3)
+
+
+class Psm:
+    """One PSM. Positions in and out are real metres in the world frame; the RCM pose is fixed at build."""
+
+    def __init__(self, client, rcm_position_m, rcm_yaw_rad: float = 0.0):
+        self.client = client
+        self.world_T_rcm = np.eye(4)
+        self.world_T_rcm[:3, :3] = kin.rot_z3(rcm_yaw_rad)
+        self.world_T_rcm[:3, 3] = rcm_position_m
+        self.rcm_T_world = np.linalg.inv(self.world_T_rcm)
+        self.body = self._build()
+        self._vmax = physics.scaled_velocity_limits()
+        self._q_target = np.zeros(6)
+        self._jaw_target = 0.0
+
+    # ------------------------------------------------------------------ construction
+    def _build(self) -> int:
+        c = self.client
+        S = SCALING
+        positions, orientations, parents, joint_types, axes = [], [], [], [], []
+        cols, viss, masses = [], [], []
+        for i, row in enumerate(kin.PSM_DH):
+            fixed = kin.dh_fixed_transform(row)
+            positions.append((fixed[:3, 3] * S).tolist())
+            orientations.append(matrix_to_quat(fixed[:3, :3]))
+            parents.append(i)  # PyBullet parent indices are 1-based into links (0 = base)
+            joint_types.append(pb.JOINT_PRISMATIC if row[4] else pb.JOINT_REVOLUTE)
+            axes.append([0, 0, 1])
+            masses.append(0.1)
+            cols.append(-1)
+            viss.append(-1)
+        # Visuals: the shaft hangs on the roll link (frame 4 sits at the shaft end; the shaft runs back along −z).
+        shaft_len = 0.40 * S
+        viss[3] = c.createVisualShape(pb.GEOM_CYLINDER, radius=0.004 * S, length=shaft_len,
+                                      visualFramePosition=[0, 0, -shaft_len / 2], rgbaColor=_SHAFT_COLOUR)
+        # Wrist pitch link: a short capsule from the pitch axis to the yaw axis (along its x axis).
+        wrist_q = matrix_to_quat(np.array([[0, 0, 1], [0, 1, 0], [-1, 0, 0]], float))
+        cols[4] = c.createCollisionShape(pb.GEOM_CAPSULE, radius=0.0025 * S, height=kin.WRIST_LENGTH * S * 0.6,
+                                         collisionFramePosition=[kin.WRIST_LENGTH * S / 2, 0, 0],
+                                         collisionFrameOrientation=wrist_q)
+        viss[4] = c.createVisualShape(pb.GEOM_CAPSULE, radius=0.0025 * S, length=kin.WRIST_LENGTH * S,
+                                      visualFramePosition=[kin.WRIST_LENGTH * S / 2, 0, 0],
+                                      visualFrameOrientation=wrist_q, rgbaColor=_WRIST_COLOUR)
+        # Jaws: revolute about the wrist-yaw axis (z of frame 6), blades along +y, opening along ±x.
+        for sign in (+1.0, -1.0):
+            centre = np.array([sign * _JAW_HALF[0], _JAW_HALF[1], 0.0]) * S
+            cols.append(c.createCollisionShape(pb.GEOM_BOX, halfExtents=(_JAW_HALF * S).tolist(),
+                                               collisionFramePosition=centre.tolist()))
+            viss.append(c.createVisualShape(pb.GEOM_BOX, halfExtents=(_JAW_HALF * S).tolist(),
+                                            visualFramePosition=centre.tolist(), rgbaColor=_JAW_COLOUR))
+            positions.append([0, 0, 0])
+            orientations.append([0, 0, 0, 1])
+            parents.append(6)
+            joint_types.append(pb.JOINT_REVOLUTE)
+            axes.append([0, 0, 1])
+            masses.append(0.02)
+        # Tool tip: fixed frame, no collision.
+        positions.append((kin.TOOL_TIP_OFFSET[:3, 3] * S).tolist())
+        orientations.append(matrix_to_quat(kin.TOOL_TIP_OFFSET[:3, :3]))
+        parents.append(6)
+        joint_types.append(pb.JOINT_FIXED)
+        axes.append([0, 0, 1])
+        masses.append(0.01)
+        cols.append(-1)
+        viss.append(-1)
+
+        n = len(masses)
+        base_vis = c.createVisualShape(pb.GEOM_SPHERE, radius=0.004 * S, rgbaColor=(0.9, 0.6, 0.1, 1.0))
+        body = c.createMultiBody(
+            baseMass=0.0, baseCollisionShapeIndex=-1, baseVisualShapeIndex=base_vis,
+            basePosition=(self.world_T_rcm[:3, 3] * S).tolist(),
+            baseOrientation=matrix_to_quat(self.world_T_rcm[:3, :3]),
+            linkMasses=masses, linkCollisionShapeIndices=cols, linkVisualShapeIndices=viss,
+            linkPositions=positions, linkOrientations=orientations,
+            linkInertialFramePositions=[[0, 0, 0]] * n, linkInertialFrameOrientations=[[0, 0, 0, 1]] * n,
+            linkParentIndices=parents, linkJointTypes=joint_types, linkJointAxis=axes,
+            useMaximalCoordinates=False)
+        for j in range(n):
+            c.changeDynamics(body, j, linearDamping=0.0, angularDamping=0.0, jointDamping=0.0)
+        for j in JAW_JOINTS:
+            c.changeDynamics(body, j, lateralFriction=physics.JAW_FRICTION, spinningFriction=0.0)
+        # Free-moving joints would fall under gravity before the first command: disable default velocity motors
+        # by commanding them explicitly in reset().
+        return body
+
+    # ------------------------------------------------------------------ state
+    def reset_joints(self, q, jaw: float) -> None:
+        c = self.client
+        q = np.asarray(q, float)
+        qs = q.copy()
+        qs[2] *= SCALING
+        for j, v in zip(ARM_JOINTS, qs):
+            c.resetJointState(self.body, j, v, 0.0)
+        for j, sign in zip(JAW_JOINTS, _JAW_SIGNS):
+            c.resetJointState(self.body, j, sign * jaw / 2, 0.0)
+        self._q_target = q.copy()
+        self._jaw_target = jaw
+        self._apply_arm_targets()
+        self._apply_jaw_target()
+
+    def joint_positions(self) -> np.ndarray:
+        states = self.client.getJointStates(self.body, ARM_JOINTS)
+        q = np.array([s[0] for s in states])
+        q[2] /= SCALING
+        return q
+
+    def joint_velocities(self) -> np.ndarray:
+        states = self.client.getJointStates(self.body, ARM_JOINTS)
+        v = np.array([s[1] for s in states])
+        v[2] /= SCALING
+        return v
+
+    def jaw_angle(self) -> float:
+        a, b = self.client.getJointStates(self.body, JAW_JOINTS)
+        return float(_JAW_SIGNS[0] * a[0] + _JAW_SIGNS[1] * b[0])
+
+    def tip_pose(self) -> np.ndarray:
+        """World pose of the tool tip (4×4, real metres), from the simulated joint positions."""
+        return self.world_T_rcm @ kin.psm_fk(self.joint_positions())
+
+    def link_pose_world(self, link: int) -> tuple[np.ndarray, np.ndarray]:
+        """(position in real metres, rotation matrix) of a link, as PyBullet simulates it."""
+        st = self.client.getLinkState(self.body, link, computeForwardKinematics=True)
+        return np.asarray(st[4]) / SCALING, quat_to_matrix(self.client, st[5])
+
+    # ------------------------------------------------------------------ commands
+    def ik(self, tip_pose_world: np.ndarray) -> kin.IKResult:
+        return kin.psm_ik(self.rcm_T_world @ tip_pose_world)
+
+    def command_tip(self, tip_pose_world: np.ndarray) -> bool:
+        """Set joint targets for a tip pose. Out-of-limit solutions are refused (the arm keeps its target)."""
+        sol = self.ik(tip_pose_world)
+        if not sol.within_limits:
+            return False
+        q = sol.q.copy()
+        # Keep roll continuous: pick the 2π-equivalent closest to the current target within limits.
+        for cand in (q[3] - 2 * np.pi, q[3] + 2 * np.pi):
+            if kin.PSM_LOWER[3] <= cand <= kin.PSM_UPPER[3] and abs(cand - self._q_target[3]) < abs(q[3] - self._q_target[3]):
+                q[3] = cand
+        self._q_target = q
+        self._apply_arm_targets()
+        return True
+
+    def command_joints(self, q) -> None:
+        self._q_target = np.clip(np.asarray(q, float), kin.PSM_LOWER, kin.PSM_UPPER)
+        self._apply_arm_targets()
+
+    def command_jaw(self, angle: float) -> None:
+        self._jaw_target = float(np.clip(angle, *kin.JAW_LIMITS))
+        self._apply_jaw_target()
+
+    def _apply_arm_targets(self) -> None:
+        c = self.client
+        targets = self._q_target.copy()
+        targets[2] *= SCALING
+        for k, j in enumerate(ARM_JOINTS):
+            c.setJointMotorControl2(self.body, j, pb.POSITION_CONTROL, targetPosition=float(targets[k]),
+                                    targetVelocity=0.0, positionGain=physics.PSM_POSITION_GAIN,
+                                    velocityGain=physics.PSM_VELOCITY_GAIN, force=physics.PSM_MAX_FORCE[k],
+                                    maxVelocity=float(self._vmax[k]))
+
+    def _apply_jaw_target(self) -> None:
+        c = self.client
+        for j, sign in zip(JAW_JOINTS, _JAW_SIGNS):
+            c.setJointMotorControl2(self.body, j, pb.POSITION_CONTROL, targetPosition=sign * self._jaw_target / 2,
+                                    targetVelocity=0.0,
+                                    positionGain=physics.PSM_POSITION_GAIN, velocityGain=physics.PSM_VELOCITY_GAIN,
+                                    force=physics.JAW_MAX_FORCE, maxVelocity=physics.JAW_MAX_VELOCITY)

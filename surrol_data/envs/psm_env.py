@@ -1,0 +1,215 @@
+"""Single-PSM goal-conditioned task: the Gymnasium env that NeedleReach, NeedlePick, … specialise.
+
+A task is a small subclass that declares its scene (``build_scene``), its episode set-up and goal
+sampling (``reset_task``), what it observes of its object, its achieved goal, and its scripted oracle.
+This class owns the arm, the action mapping, the grasp-by-constraint and the Gymnasium API.
+
+Action (5,): (dx, dy, dz, dyaw, jaw) in [-1, 1]; 1 = 1 cm of tool-tip motion and 30° of yaw per step;
+jaw < 0 closes (and grasps when both jaws touch the object), jaw ≥ 0 opens to 40° (and releases).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import gymnasium as gym
+from gymnasium import spaces
+
+from surrol_data.envs import kinematics as kin
+from surrol_data.envs import objects, physics
+from surrol_data.envs.grasp import Grasp
+from surrol_data.envs.psm import Psm
+from surrol_data.envs.units import ACTION_POSITION_M, ACTION_YAW_RAD, SCALING, SUCCESS_TOLERANCE_M
+
+# PSM1's remote centre of motion (real metres) and the tip workspace the tasks sample from.
+PSM1_RCM = np.array([0.507, 0.0736, 0.8524])
+WORKSPACE = np.array([[0.50, 0.60], [-0.05, 0.05], [0.675, 0.745]])
+# Commanded tip targets may leave the sampling workspace by this much (low side, high side).
+WORKSPACE_MARGIN = np.array([[0.02, 0.02], [0.02, 0.02], [0.0, 0.08]])
+# Tool-down tip frame: columns are tip x (wrist-yaw axis), tip y (jaw-opening direction), tip z (down).
+_TOOL_DOWN = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+
+
+def tip_orientation_features(rotation: np.ndarray) -> np.ndarray:
+    """Euler xyz (rad) of the tip rotation relative to the tool-down frame: (0, 0, yaw) when pointing down.
+
+    Measuring relative to tool-down keeps the features continuous where plain world Euler angles of a
+    downward-pointing frame would flip between ±π.
+    """
+    r = rotation @ _TOOL_DOWN.T
+    pitch = np.arcsin(np.clip(-r[2, 0], -1.0, 1.0))
+    roll = np.arctan2(r[2, 1], r[2, 2])
+    yaw = np.arctan2(r[1, 0], r[0, 0])
+    return np.array([roll, pitch, yaw])
+
+
+def tool_down(yaw: float) -> np.ndarray:
+    return kin.rot_z3(yaw) @ _TOOL_DOWN
+
+
+def wrap_angle(a):
+    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
+
+
+class PsmEnv(gym.Env):
+    metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 5}
+
+    TASK = ""                 # natural-language description (stored with every recorded frame)
+    OBJECT_OBS = True         # 19-D observation with object terms (else 7-D)
+    BLOCK_JAW = False         # jaw forced closed, no grasping (NeedleReach)
+    FIXED_YAW = False         # yaw action ignored
+    ORACLE_GAIN = 0.4
+
+    def __init__(self, render_mode: str | None = None, render_size: tuple[int, int] = (480, 360)):
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+        self.render_mode = render_mode
+        self.render_size = render_size
+        self.client = physics.make_client(gui=render_mode == "human")
+        objects.make_table(self.client)
+        self.psm = Psm(self.client, PSM1_RCM)
+        self.object_id = -1
+        self.build_scene()
+        self.goal_marker = objects.make_goal_marker(self.client)
+        self.grasp = Grasp(self.client, self.psm, self.object_id)
+        self.goal = np.zeros(3)
+        self._waypoints: list[dict] = []
+        self._wp_index = 0
+        self._hold = 0
+
+        obs_dim = 19 if self.OBJECT_OBS else 7
+        box = lambda n: spaces.Box(-np.inf, np.inf, shape=(n,), dtype=np.float32)  # noqa: E731
+        self.observation_space = spaces.Dict(
+            {"observation": box(obs_dim), "achieved_goal": box(3), "desired_goal": box(3)})
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(5,), dtype=np.float32)
+
+    # ------------------------------------------------------------------ to be declared by tasks
+    def build_scene(self) -> None:
+        raise NotImplementedError
+
+    def reset_task(self, rng: np.random.Generator) -> tuple[np.ndarray, float, float]:
+        """Place objects, set ``self.goal``; return the initial tip position, yaw and jaw angle."""
+        raise NotImplementedError
+
+    def object_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(object position, waypoint position, object Euler), real metres / rad."""
+        raise NotImplementedError
+
+    def achieved_goal(self) -> np.ndarray:
+        raise NotImplementedError
+
+    def plan_oracle(self) -> list[dict]:
+        """Waypoints for the oracle, computed at reset from the settled scene."""
+        return []
+
+    def is_success(self, achieved_goal, desired_goal) -> np.ndarray:
+        d = np.linalg.norm(np.asarray(achieved_goal) - np.asarray(desired_goal), axis=-1)
+        return d < SUCCESS_TOLERANCE_M
+
+    # ------------------------------------------------------------------ Gymnasium API
+    def compute_reward(self, achieved_goal, desired_goal, info=None):
+        """Sparse reward is_success − 1; works on single goals and on batches (HER relabelling)."""
+        return self.is_success(achieved_goal, desired_goal).astype(np.float32) - 1.0
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        self.grasp.release()
+        tip, yaw, jaw = self.reset_task(self.np_random)
+        sol = self.psm.ik(kin.pose_from(tip, tool_down(yaw)))
+        if not sol.within_limits:
+            raise RuntimeError(f"initial tip position {tip} is outside the PSM's reach; check the task's workspace")
+        self.psm.reset_joints(sol.q, jaw)
+        for _ in range(physics.SETTLE_STEPS):
+            self.client.stepSimulation()
+        self.client.resetBasePositionAndOrientation(self.goal_marker, (self.goal * SCALING).tolist(), [0, 0, 0, 1])
+        self._waypoints = self.plan_oracle()
+        self._wp_index = 0
+        self._hold = 0
+        obs = self._get_obs()
+        return obs, self._info(obs)
+
+    def step(self, action):
+        action = np.clip(np.asarray(action, dtype=np.float64).reshape(5), -1.0, 1.0)
+        self._apply_action(action)
+        for _ in range(physics.SUBSTEPS):
+            self.client.stepSimulation()
+        if not self.BLOCK_JAW:
+            self.grasp.update(closing=action[4] < 0)
+        obs = self._get_obs()
+        info = self._info(obs)
+        reward = float(self.compute_reward(obs["achieved_goal"], obs["desired_goal"]))
+        return obs, reward, False, False, info
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        w, h = self.render_size
+        target = np.array([0.55, 0.0, 0.69]) * SCALING
+        view = self.client.computeViewMatrixFromYawPitchRoll(target.tolist(), 0.25 * SCALING, 90, -35, 0, 2)
+        proj = self.client.computeProjectionMatrixFOV(45, w / h, 0.01 * SCALING, 2.0 * SCALING)
+        img = self.client.getCameraImage(w, h, view, proj, renderer=self.client.ER_TINY_RENDERER)[2]
+        return np.asarray(img, dtype=np.uint8).reshape(h, w, 4)[:, :, :3]
+
+    def close(self):
+        if getattr(self, "client", None) is not None:
+            self.client.disconnect()
+            self.client = None
+
+    # ------------------------------------------------------------------ internals
+    def _apply_action(self, action: np.ndarray) -> None:
+        pose = self.psm.tip_pose()
+        target = pose[:3, 3] + action[:3] * ACTION_POSITION_M
+        target = np.clip(target, WORKSPACE[:, 0] - WORKSPACE_MARGIN[:, 0], WORKSPACE[:, 1] + WORKSPACE_MARGIN[:, 1])
+        yaw = tip_orientation_features(pose[:3, :3])[2]
+        if not self.FIXED_YAW:
+            yaw = yaw + action[3] * ACTION_YAW_RAD
+        self.psm.command_tip(kin.pose_from(target, tool_down(yaw)))
+        if self.BLOCK_JAW or action[4] < 0:
+            self.psm.command_jaw(physics.JAW_CLOSED_RAD)
+        else:
+            self.psm.command_jaw(physics.JAW_OPEN_RAD)
+
+    def robot_state(self) -> np.ndarray:
+        pose = self.psm.tip_pose()
+        return np.concatenate([pose[:3, 3], tip_orientation_features(pose[:3, :3]), [self.psm.jaw_angle()]])
+
+    def _get_obs(self) -> dict:
+        robot = self.robot_state()
+        if self.OBJECT_OBS:
+            pos, wp, euler = self.object_state()
+            state = np.concatenate([robot, pos, pos - robot[:3], wp, euler])
+        else:
+            state = robot
+        return {"observation": state.astype(np.float32),
+                "achieved_goal": self.achieved_goal().astype(np.float32),
+                "desired_goal": self.goal.astype(np.float32)}
+
+    def _info(self, obs: dict) -> dict:
+        return {"is_success": float(self.is_success(obs["achieved_goal"], obs["desired_goal"])),
+                "tip_position": obs["observation"][None, :3].copy(),
+                "jaw_angle": obs["observation"][None, 6].copy(),
+                "grasped": self.grasp.attached}
+
+    # ------------------------------------------------------------------ oracle
+    def oracle_action(self, obs: dict) -> np.ndarray:
+        """Scripted linear-waypoint policy: move the tip towards the next waypoint at most ``ORACLE_GAIN`` cm
+        per axis per step, turn the yaw towards the waypoint's, set the jaw; a waypoint is done when the tip
+        is within its tolerance (and, for closing waypoints, after the jaw had time to close)."""
+        state = obs["observation"]
+        tip, yaw = state[:3].astype(np.float64), float(state[5])
+        while self._wp_index < len(self._waypoints):
+            wp = self._waypoints[self._wp_index]
+            target = wp["target"](obs) if callable(wp["target"]) else wp["target"]
+            err = target - tip
+            yaw_err = float(wrap_angle(wp.get("yaw", yaw) - yaw))
+            reached = np.linalg.norm(err) < wp.get("tol", 1e-3) and abs(yaw_err) < wp.get("yaw_tol", 0.05)
+            if reached and self._hold >= wp.get("hold", 0):
+                self._wp_index += 1
+                self._hold = 0
+                continue
+            if reached:
+                self._hold += 1
+            delta = err / ACTION_POSITION_M
+            delta = delta / max(1.0, np.abs(delta).max()) * wp.get("gain", self.ORACLE_GAIN)
+            d_yaw = np.clip(yaw_err / ACTION_YAW_RAD, -0.4, 0.4)
+            return np.array([*delta, d_yaw, wp["jaw"]], dtype=np.float32)
+        return np.array([0, 0, 0, 0, self._waypoints[-1]["jaw"] if self._waypoints else 0.5], dtype=np.float32)

@@ -1,0 +1,1 @@
+"""Task classes, one per file."""
