@@ -65,11 +65,14 @@ def dh_joint_transform(row, q: float) -> np.ndarray:
     return _trans(z=q) if prismatic else _rot_z(q)
 
 
+_PSM_FIXED = tuple(dh_fixed_transform(row) for row in PSM_DH)
+
+
 def psm_link_frames(q) -> list[np.ndarray]:
     """Frames 1..6 of the PSM in the RCM frame (frame 6 = wrist yaw)."""
     frames, t = [], np.eye(4)
-    for row, qi in zip(PSM_DH, q):
-        t = t @ dh_fixed_transform(row) @ dh_joint_transform(row, qi)
+    for row, fixed, qi in zip(PSM_DH, _PSM_FIXED, q):
+        t = t @ fixed @ dh_joint_transform(row, qi)
         frames.append(t)
     return frames
 

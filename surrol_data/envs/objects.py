@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pybullet as pb
+from surrol_data.envs.physics import pb  # physics imports pybullet quietly
 
 from surrol_data.envs import physics
 from surrol_data.envs.units import SCALING

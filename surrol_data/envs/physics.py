@@ -9,9 +9,12 @@ coarser integration (``SUBSTEPS`` per control period), which keeps contacts stab
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import os
+import sys
+
 import numpy as np
-import pybullet as pb
-from pybullet_utils.bullet_client import BulletClient
 
 from surrol_data.envs.units import CONTROL_PERIOD_S, SCALING
 
@@ -47,7 +50,8 @@ def scaled_velocity_limits() -> np.ndarray:
 
 def make_client(gui: bool = False) -> BulletClient:
     """A fresh PyBullet world with this project's physics settings (no module-level client anywhere)."""
-    client = BulletClient(connection_mode=pb.GUI if gui else pb.DIRECT)
+    with _stdout_silenced(not gui):
+        client = BulletClient(connection_mode=pb.GUI if gui else pb.DIRECT)
     configure(client)
     if gui:
         client.configureDebugVisualizer(pb.COV_ENABLE_GUI, 0)
@@ -58,3 +62,32 @@ def configure(client: BulletClient) -> None:
     client.setGravity(*GRAVITY)
     client.setPhysicsEngineParameter(fixedTimeStep=TIME_STEP, numSolverIterations=SOLVER_ITERATIONS,
                                      numSubSteps=0, deterministicOverlappingPairs=1)
+
+
+@contextlib.contextmanager
+def _stdout_silenced(enabled: bool = True):
+    """PyBullet's C code prints banner lines ("argv[0]=") on every connect; keep them out of progress output."""
+    if not enabled:
+        yield
+        return
+    sys.stdout.flush()
+    try:
+        saved = os.dup(1)
+    except OSError:  # no real stdout (e.g. some notebook kernels): nothing to silence
+        yield
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 1)
+        yield
+    finally:
+        with contextlib.suppress(Exception):
+            ctypes.CDLL(None).fflush(None)  # C-level buffered prints go to /dev/null too
+        os.dup2(saved, 1)
+        os.close(saved)
+        os.close(devnull)
+
+
+with _stdout_silenced():
+    import pybullet as pb
+    from pybullet_utils.bullet_client import BulletClient

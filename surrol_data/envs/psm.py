@@ -12,7 +12,7 @@ Link indices: 0 outer yaw, 1 outer pitch, 2 insertion, 3 tool roll, 4 wrist pitc
 from __future__ import annotations
 
 import numpy as np
-import pybullet as pb
+from surrol_data.envs.physics import pb  # physics imports pybullet quietly
 
 from surrol_data.envs import kinematics as kin
 from surrol_data.envs import physics

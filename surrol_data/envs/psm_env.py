@@ -71,6 +71,10 @@ class PsmEnv(gym.Env):
         self.build_scene()
         self.goal_marker = objects.make_goal_marker(self.client)
         self.grasp = Grasp(self.client, self.psm, self.object_id)
+        # Every reset restores this snapshot (which includes contact caches), so equal seeds give equal
+        # episodes bit for bit without rebuilding the world.
+        self._initial_state = self.client.saveState()
+        self._tip = np.eye(4)
         self.goal = np.zeros(3)
         self._waypoints: list[dict] = []
         self._wp_index = 0
@@ -113,13 +117,13 @@ class PsmEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         self.grasp.release()
+        self.client.restoreState(stateId=self._initial_state)
         tip, yaw, jaw = self.reset_task(self.np_random)
         sol = self.psm.ik(kin.pose_from(tip, tool_down(yaw)))
         if not sol.within_limits:
             raise RuntimeError(f"initial tip position {tip} is outside the PSM's reach; check the task's workspace")
         self.psm.reset_joints(sol.q, jaw)
-        for _ in range(physics.SETTLE_STEPS):
-            self.client.stepSimulation()
+        self.simulate(physics.SETTLE_STEPS)
         self.client.resetBasePositionAndOrientation(self.goal_marker, (self.goal * SCALING).tolist(), [0, 0, 0, 1])
         self._waypoints = self.plan_oracle()
         self._wp_index = 0
@@ -130,8 +134,7 @@ class PsmEnv(gym.Env):
     def step(self, action):
         action = np.clip(np.asarray(action, dtype=np.float64).reshape(5), -1.0, 1.0)
         self._apply_action(action)
-        for _ in range(physics.SUBSTEPS):
-            self.client.stepSimulation()
+        self.simulate(physics.SUBSTEPS)
         if not self.BLOCK_JAW:
             self.grasp.update(closing=action[4] < 0)
         obs = self._get_obs()
@@ -155,8 +158,17 @@ class PsmEnv(gym.Env):
             self.client = None
 
     # ------------------------------------------------------------------ internals
+    def simulate(self, steps: int) -> None:
+        """Advance the physics and refresh the cached tip pose (read by observation, action and oracle)."""
+        for _ in range(steps):
+            self.client.stepSimulation()
+        self._tip = self.psm.tip_pose()
+
+    def tip_pose(self) -> np.ndarray:
+        return self._tip
+
     def _apply_action(self, action: np.ndarray) -> None:
-        pose = self.psm.tip_pose()
+        pose = self._tip
         target = pose[:3, 3] + action[:3] * ACTION_POSITION_M
         target = np.clip(target, WORKSPACE[:, 0] - WORKSPACE_MARGIN[:, 0], WORKSPACE[:, 1] + WORKSPACE_MARGIN[:, 1])
         yaw = tip_orientation_features(pose[:3, :3])[2]
@@ -169,7 +181,7 @@ class PsmEnv(gym.Env):
             self.psm.command_jaw(physics.JAW_OPEN_RAD)
 
     def robot_state(self) -> np.ndarray:
-        pose = self.psm.tip_pose()
+        pose = self._tip
         return np.concatenate([pose[:3, 3], tip_orientation_features(pose[:3, :3]), [self.psm.jaw_angle()]])
 
     def _get_obs(self) -> dict:

@@ -19,17 +19,16 @@ class NeedleReach(NeedleTaskBase):
 
     def reset_task(self, rng):
         self.place_needle(rng)
-        self._settle()
+        self.simulate(physics.SETTLE_STEPS)
         self.goal = self.needle_waypoint(1) + np.array([0.0, 0.0, 0.005])
         start = np.array([WORKSPACE[0, 0], WORKSPACE[1, 1], WORKSPACE[2, 1]])
         return start, 0.0, physics.JAW_CLOSED_RAD
 
     def _settle(self):
-        for _ in range(physics.SETTLE_STEPS):
-            self.client.stepSimulation()
+        self.simulate(physics.SETTLE_STEPS)
 
     def achieved_goal(self) -> np.ndarray:
-        return self.psm.tip_pose()[:3, 3]
+        return self.tip_pose()[:3, 3]
 
     def oracle_action(self, obs: dict) -> np.ndarray:
         # Proportional move straight at the goal, at most ORACLE_GAIN cm per axis per step; still once within 2 mm.

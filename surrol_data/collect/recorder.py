@@ -1,0 +1,701 @@
+"""Record trajectories as a LeRobot v3 dataset (the real ``lerobot`` package) with per-episode provenance.
+
+Usage::
+
+    features = frame_features(obs_dim=19, goal_dim=3, act_dim=5, n_arms=1)
+    with DatasetRecorder("datasets/needle_pick", features=features, task="NeedlePick",
+                         env_id="SurRoL/NeedlePick-v0", task_description="pick up the needle") as rec:
+        for traj, seed in episodes:
+            rec.record(traj, {"source": "script", "device": "none", "skill": "scripted", "seed": seed})
+
+Durability — what survives how the process ends:
+
+* normal exit, exception, SIGINT, SIGTERM: the ``with`` block finalizes, so every episode whose
+  ``record`` returned is on disk and the dataset loads. The episode in progress is dropped. While
+  recording, SIGINT/SIGTERM handlers raise (KeyboardInterrupt / SystemExit(143)) so ``finally`` runs;
+  a signal that arrives inside ``save_episode`` or a checkpoint is held until it is done, so no episode is
+  ever half written. Previous handlers are restored on close.
+* SIGKILL, power loss, ``os._exit``: LeRobot keeps one ParquetWriter open per session and a parquet
+  file only becomes readable once its footer is written at close. The recorder therefore
+  **checkpoints**: every ``checkpoint_every`` episodes or ``checkpoint_interval_s`` seconds, whichever
+  comes first, it finalizes the dataset (closing every file) and resumes it (LeRobot resume starts new
+  data / metadata / video files). A hard kill then leaves only the files opened since the last checkpoint
+  unreadable; :func:`repair` moves them aside and rewrites info/stats/tasks so the dataset loads with every
+  episode completed before that checkpoint (:attr:`DatasetRecorder.durable_episodes`). A checkpoint costs
+  ~0.3 s, so for slow human demonstrations use ``checkpoint_every=1``.
+
+Episode metadata is flushed each episode (``metadata_buffer_size=1``) so an uncaught error that skips
+``finalize`` never leaves info.json ahead of meta/episodes.
+
+Provenance goes into the episodes parquet as ``provenance/<name>`` columns (see
+:mod:`surrol_data.datasets.schema`) by wrapping ``ds.meta.save_episode`` (re-installed after each resume),
+so LeRobot's ``episode_filter`` sees them.
+
+Speed: LeRobot's ``save_episode`` spends ~75 % of its time in ``embed_images`` — a per-row
+``datasets.map`` that only matters for ``image`` features (PNG bytes in the parquet). With
+``fast_save=True`` the module-level ``embed_images`` of lerobot's writer is replaced by a guard that calls
+the original whenever the episode has an ``image`` feature and skips it otherwise, so it stays correct for
+any dataset written in the process.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shlex
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+
+from surrol_data.datasets.info import read_sidecar, summarize
+from surrol_data.datasets.reader import (
+    DATA_DIR,
+    EPISODES_DIR,
+    INFO_PATH,
+    DatasetError,
+    parquet_files,
+    unreadable_parquet_files,
+)
+from surrol_data.datasets.schema import (
+    FPS,
+    PROVENANCE_COLUMNS,
+    PROVENANCE_PREFIX,
+    SCHEMA_VERSION,
+    SIDECAR_PATH,
+    dims_from_features,
+    normalize_provenance,
+    package_version,
+    utc_now_iso,
+)
+from surrol_data.datasets.trajectory import DEVICE_FLAGS, Trajectory
+
+# Before any lerobot import: a dataset with a missing metadata file makes lerobot fall back to the Hub;
+# offline, that fails fast instead of doing DNS lookups. SVT_LOG silences ~20 encoder lines per episode.
+os.environ.setdefault("HF_HUB_OFFLINE", "1")
+os.environ.setdefault("SVT_LOG", "1")
+
+ROBOT_TYPE = "dvrk_psm"
+VIDEO_BACKEND = "pyav"  # explicit: avoids torchcodec probing (and its 60-line warning without system ffmpeg)
+REPAIR_DIR = ".surrol_data_repair"
+
+
+def _lerobot_dataset_class():
+    """``LeRobotDataset``, imported on first use (~6 s, ~0.9 GB)."""
+    os.environ.setdefault("HF_HUB_OFFLINE", "1")
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    return LeRobotDataset
+
+
+def _install_fast_save() -> None:
+    """Skip lerobot's per-row ``embed_images`` map for episodes without ``image`` features (see module doc)."""
+    from lerobot.datasets import dataset_writer
+
+    original = getattr(dataset_writer, "embed_images", None)
+    if original is None or getattr(original, "_surrol_guard", False):
+        return  # lerobot changed (nothing to patch) or already guarded
+    import datasets
+
+    def embed_images_if_any(dataset):
+        if any(isinstance(ft, datasets.Image) for ft in dataset.features.values()):
+            return original(dataset)
+        return dataset
+
+    embed_images_if_any._surrol_guard = True
+    dataset_writer.embed_images = embed_images_if_any
+
+
+def git_commit() -> str:
+    """Commit of the surrol_data source tree (``-dirty`` if tracked files changed), "" when not in git."""
+    here = Path(__file__).resolve().parent
+    try:
+        sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, timeout=5)
+        if sha.returncode != 0:
+            return ""
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here,
+                               capture_output=True, text=True, timeout=10)
+        return sha.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
+    except (OSError, subprocess.SubprocessError):
+        return ""
+
+
+def _write_json_atomic(path: Path, data: dict) -> None:
+    # A kill mid-write must leave the previous version, not half a file.
+    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2, default=str))
+    os.replace(tmp, path)
+
+
+def _features_mismatch(expected: dict, actual: dict) -> list[str]:
+    problems = []
+    for key in sorted(set(expected) | set(actual)):
+        if key not in actual:
+            problems.append(f"{key} missing from the dataset")
+        elif key not in expected:
+            problems.append(f"{key} in the dataset but not in the given features")
+        else:
+            a, b = expected[key], actual[key]
+            if a["dtype"] != b["dtype"] or tuple(a["shape"]) != tuple(b["shape"]):
+                problems.append(f"{key}: given {a['dtype']}{tuple(a['shape'])}, dataset has "
+                                f"{b['dtype']}{tuple(b['shape'])}")
+    return problems
+
+
+class DatasetRecorder:
+    """Context manager writing one :class:`Trajectory` per :meth:`record` call (see the module doc).
+
+    ``root``: the dataset folder. With ``append=False`` it must not exist; with ``append=True`` an
+    existing dataset is resumed (and a missing one created). ``features`` (from
+    :func:`surrol_data.datasets.schema.frame_features`) is required to create, and checked against the
+    dataset when appending. ``task_description`` is LeRobot's natural-language per-frame task; ``task`` and
+    ``env_id`` are the defaults of the provenance columns of the same names and go into the sidecar.
+    """
+
+    def __init__(self, root: str | Path, *, task: str, env_id: str, task_description: str,
+                 features: dict | None = None, repo_id: str | None = None, robot_type: str = ROBOT_TYPE,
+                 append: bool = False, checkpoint_every: int = 10, checkpoint_interval_s: float | None = 60.0,
+                 command: str | None = None, handle_signals: bool = True, fast_save: bool = True):
+        self.root = Path(root)
+        self.repo_id = repo_id or f"local/{self.root.resolve().name}"
+        self.task, self.env_id, self.task_description = task, env_id, task_description
+        self.robot_type = robot_type
+        self.append = append
+        if checkpoint_every < 1:
+            raise ValueError(f"checkpoint_every must be >= 1, got {checkpoint_every}")
+        self.checkpoint_every = checkpoint_every
+        self.checkpoint_interval_s = checkpoint_interval_s
+        self.command = command if command is not None else shlex.join(sys.argv)
+        self.handle_signals = handle_signals
+        self.fast_save = fast_save
+        for name, value in (("task", task), ("env_id", env_id), ("task_description", task_description)):
+            if not isinstance(value, str) or not value:
+                raise ValueError(f"DatasetRecorder: {name} must be a non-empty string, got {value!r}")
+
+        self._exists = self.root.exists()
+        if self._exists and not append:
+            raise FileExistsError(f"{self.root} already exists: pass append=True to add episodes to it, "
+                                  "or choose a new folder")
+        if self._exists:
+            if not (self.root / INFO_PATH).exists():
+                raise DatasetError(f"{self.root} exists but is not a LeRobot dataset ({INFO_PATH} missing); "
+                                   "choose a new folder or the root of an existing dataset")
+            if unreadable_parquet_files(self.root):
+                raise DatasetError(f"{self.root} was left unreadable by a killed recording: run "
+                                   "surrol_data.collect.recorder.repair(root) first, then append")
+            existing = json.loads((self.root / INFO_PATH).read_text())["features"]
+            if features is not None:
+                ours = {k: v for k, v in existing.items() if k not in _LEROBOT_DEFAULT_FEATURES}
+                problems = _features_mismatch(features, ours)
+                if problems:
+                    raise ValueError(f"cannot append to {self.root}: features differ — " + "; ".join(problems))
+            sidecar = read_sidecar(self.root)
+            for key, value in (("task", task), ("env_id", env_id)):
+                if sidecar.get(key, value) != value:
+                    raise ValueError(f"cannot append to {self.root}: it holds {key}={sidecar[key]!r}, "
+                                     f"the recorder was given {value!r}; record into another dataset")
+            features = {k: v for k, v in existing.items() if k not in _LEROBOT_DEFAULT_FEATURES}
+        elif features is None:
+            raise ValueError("DatasetRecorder: features are required to create a dataset "
+                             "(use surrol_data.datasets.schema.frame_features)")
+        self.features = features
+        self.dims = dims_from_features(features)
+
+        self._ds = None
+        self._git_commit = ""
+        self._critical = 0
+        self._pending_signal: int | None = None
+        self._previous_handlers: dict[int, object] = {}
+        self._pending_columns: dict | None = None
+        self._since_checkpoint = 0
+        self._last_checkpoint_t = 0.0
+        self._durable = 0
+        self._session: dict = {}
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def __enter__(self) -> DatasetRecorder:
+        self.open()
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.close()
+
+    def open(self) -> None:
+        """Create or resume the dataset and install the signal handlers (``with`` does this for you)."""
+        if self._ds is not None:
+            return
+        LeRobotDataset = _lerobot_dataset_class()
+        if self.fast_save:
+            _install_fast_save()
+        self._git_commit = git_commit()
+        if self._exists:
+            self._ds = LeRobotDataset.resume(self.repo_id, root=self.root, video_backend=VIDEO_BACKEND)
+        else:
+            self._ds = LeRobotDataset.create(self.repo_id, fps=FPS, features=self.features, root=self.root,
+                                             robot_type=self.robot_type, use_videos=True,
+                                             video_backend=VIDEO_BACKEND, metadata_buffer_size=1)
+            self._exists = True
+        self._prepare_writer()
+        self._durable = self._ds.meta.total_episodes
+        self._last_checkpoint_t = time.monotonic()
+        self._session = {"started_at": utc_now_iso(), "command": self.command, "git_commit": self._git_commit,
+                         "package_version": package_version(), "first_episode": self._durable, "episodes": 0}
+        self._write_sidecar(checkpoint=True)
+        self._install_signal_handlers()
+
+    def close(self) -> None:
+        """Finalize (drop a partial episode), write the sidecar and dataset card, restore signal handlers."""
+        if self._ds is None:
+            return
+        try:
+            with self._hold_signals():
+                if self._ds.has_pending_frames():
+                    self._ds.clear_episode_buffer()
+                self._ds.finalize()
+                self._ds = None
+                self._durable = self._total_episodes_on_disk()
+                self._session["ended_at"] = utc_now_iso()
+                self._write_sidecar(checkpoint=True)
+                write_dataset_card(self.root)
+        finally:
+            self._ds = None
+            self._restore_signal_handlers()
+
+    def _prepare_writer(self) -> None:
+        ds = self._ds
+        # resume() has no metadata_buffer_size argument and defaults to 10; flush every episode instead.
+        ds.meta._metadata_buffer_size = 1
+        original = ds.meta.save_episode
+
+        def save_episode_with_provenance(episode_index, episode_length, episode_tasks, episode_stats,
+                                         episode_metadata):
+            if self._pending_columns is None:
+                raise RuntimeError("episode saved without provenance: use DatasetRecorder.record, not "
+                                   "the LeRobotDataset directly")
+            episode_metadata = {**episode_metadata, **self._pending_columns}
+            return original(episode_index, episode_length, episode_tasks, episode_stats, episode_metadata)
+
+        ds.meta.save_episode = save_episode_with_provenance
+
+    # ------------------------------------------------------------------ signals
+
+    def _install_signal_handlers(self) -> None:
+        if not self.handle_signals or threading.current_thread() is not threading.main_thread():
+            return  # signal.signal only works in the main thread; finalize then relies on the caller
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self._previous_handlers[sig] = signal.getsignal(sig)
+            signal.signal(sig, self._on_signal)
+
+    def _restore_signal_handlers(self) -> None:
+        for sig, handler in self._previous_handlers.items():
+            signal.signal(sig, handler if handler is not None else signal.SIG_DFL)
+        self._previous_handlers.clear()
+
+    def _on_signal(self, signum, frame) -> None:
+        if self._critical:
+            self._pending_signal = signum  # raised when the episode write / checkpoint is complete
+            return
+        _raise_for_signal(signum)
+
+    @contextlib.contextmanager
+    def _hold_signals(self):
+        self._critical += 1
+        try:
+            yield
+        finally:
+            self._critical -= 1
+            if self._critical == 0 and self._pending_signal is not None:
+                signum, self._pending_signal = self._pending_signal, None
+                _raise_for_signal(signum)
+
+    # ------------------------------------------------------------------ recording
+
+    @property
+    def num_episodes(self) -> int:
+        """Episodes in the dataset, those recorded by this session included."""
+        return self._ds.meta.total_episodes if self._ds is not None else self._total_episodes_on_disk()
+
+    @property
+    def durable_episodes(self) -> int:
+        """Episodes that survive even a SIGKILL (after :func:`repair`): those before the last checkpoint."""
+        return self._durable
+
+    def _total_episodes_on_disk(self) -> int:
+        try:
+            return int(json.loads((self.root / INFO_PATH).read_text())["total_episodes"])
+        except (OSError, KeyError, json.JSONDecodeError):
+            return 0
+
+    def record(self, traj: Trajectory, provenance: dict) -> int:
+        """Write one episode and its provenance; returns its episode index.
+
+        ``provenance`` follows :data:`surrol_data.datasets.schema.PROVENANCE_COLUMNS`: source, device, skill
+        and seed are required; task, env_id, command and git_commit default to the recorder's; metric
+        columns left out are computed from ``traj``.
+        """
+        if self._ds is None:
+            raise RuntimeError("DatasetRecorder is not open: use `with DatasetRecorder(...) as rec:` or call open()")
+        frames = self._frame_arrays(traj)
+        prov = normalize_provenance(provenance, traj, defaults={
+            "task": self.task, "env_id": self.env_id, "command": self.command, "git_commit": self._git_commit})
+        ds = self._ds
+        episode_index = ds.meta.total_episodes
+        try:
+            for t in range(len(traj)):
+                frame = {key: values[t] for key, values in frames.items()}
+                frame["task"] = self.task_description
+                ds.add_frame(frame)
+        except BaseException:
+            ds.clear_episode_buffer()  # also deletes the staged camera PNGs of the episode
+            raise
+        with self._hold_signals():
+            self._pending_columns = {PROVENANCE_PREFIX + k: v for k, v in prov.items()}
+            try:
+                ds.save_episode()
+            finally:
+                self._pending_columns = None
+            self._session["episodes"] = self._session.get("episodes", 0) + 1
+            self._since_checkpoint += 1
+            due_by_time = (self.checkpoint_interval_s is not None
+                           and time.monotonic() - self._last_checkpoint_t >= self.checkpoint_interval_s)
+            if self._since_checkpoint >= self.checkpoint_every or due_by_time:
+                self.checkpoint()
+        return episode_index
+
+    def checkpoint(self) -> None:
+        """Close every open file (finalize) and resume, so a hard kill cannot lose what is recorded so far."""
+        if self._ds is None:
+            raise RuntimeError("DatasetRecorder is not open")
+        with self._hold_signals():
+            self._ds.finalize()
+            self._ds = _lerobot_dataset_class().resume(self.repo_id, root=self.root, video_backend=VIDEO_BACKEND)
+            self._prepare_writer()
+            self._durable = self._ds.meta.total_episodes
+            self._since_checkpoint = 0
+            self._last_checkpoint_t = time.monotonic()
+            self._write_sidecar(checkpoint=True)
+
+    def _frame_arrays(self, traj: Trajectory) -> dict[str, np.ndarray]:
+        """Per-feature (T, ...) arrays with the exact dtype/shape add_frame demands (checked here, clearly)."""
+        d = self.dims
+        T = len(traj)
+        if T == 0:
+            raise ValueError("cannot record a trajectory with no actions (T = 0)")
+
+        def vec(name: str, values, rows: int, dim: int, dtype=np.float32) -> np.ndarray:
+            arr = np.asarray(values)
+            if arr.ndim == 1 and dim == 1:
+                arr = arr[:, None]
+            arr = arr.reshape(len(arr), -1) if arr.ndim > 2 else arr
+            if arr.ndim != 2 or arr.shape != (rows, dim):
+                raise ValueError(f"Trajectory.{name} has shape {np.shape(values)}, the dataset expects "
+                                 f"({rows}, {dim}) (features {self.root})")
+            return np.ascontiguousarray(arr, dtype=dtype)
+
+        obs = vec("observation", traj.observation, T + 1, d["obs_dim"])
+        ag = vec("achieved_goal", traj.achieved_goal, T + 1, d["goal_dim"])
+        dg = vec("desired_goal", traj.desired_goal, T + 1, d["goal_dim"])
+        tip = vec("tip_position", traj.tip_position, T + 1, 3 * d["n_arms"])
+        jaw = vec("jaw_angle", traj.jaw_angle, T + 1, d["n_arms"])
+        extra = sorted(set(traj.flags) - set(DEVICE_FLAGS))
+        if extra:
+            raise ValueError(f"Trajectory.flags {extra} are not in the dataset schema (only {list(DEVICE_FLAGS)})")
+        frames = {
+            "observation.state": obs[:-1], "observation.achieved_goal": ag[:-1],
+            "observation.desired_goal": dg[:-1],
+            "action": vec("action", traj.action, T, d["act_dim"]),
+            "next.reward": vec("reward", traj.reward, T, 1),
+            "next.done": vec("terminated", traj.terminated, T, 1, bool),
+            "next.success": vec("success", traj.success, T, 1, bool),
+            "next.observation.state": obs[1:], "next.observation.achieved_goal": ag[1:],
+            "next.observation.desired_goal": dg[1:],
+            "complementary_info.tip_position": tip[:-1], "complementary_info.jaw_angle": jaw[:-1],
+            "complementary_info.next_tip_position": tip[1:], "complementary_info.next_jaw_angle": jaw[1:],
+        }
+        for flag in DEVICE_FLAGS:
+            frames[f"complementary_info.{flag}"] = vec(f"flags[{flag!r}]", traj.flags[flag], T, 1, bool)
+        cameras = d["cameras"]
+        if set(traj.images) != set(cameras):
+            raise ValueError(f"Trajectory.images has cameras {sorted(traj.images)}, the dataset has "
+                             f"{sorted(cameras)}: declare them in frame_features(cameras=...) or drop them")
+        for cam, (h, w) in cameras.items():
+            img = np.asarray(traj.images[cam])
+            if img.dtype != np.uint8 or img.ndim != 4 or img.shape[1:] != (h, w, 3) or len(img) < T:
+                raise ValueError(f"Trajectory.images[{cam!r}] is {img.dtype}{img.shape}, expected uint8 "
+                                 f"(T+1={T + 1}, {h}, {w}, 3)")
+            frames[f"observation.images.{cam}"] = img[:T]
+        return frames
+
+    # ------------------------------------------------------------------ sidecar
+
+    def _write_sidecar(self, checkpoint: bool = False) -> None:
+        side = read_sidecar(self.root)
+        side.update({
+            "schema_version": SCHEMA_VERSION, "repo_id": self.repo_id, "task": self.task, "env_id": self.env_id,
+            "task_description": self.task_description, "robot_type": self.robot_type, "fps": FPS,
+            "package_version": package_version(), "updated_at": utc_now_iso(),
+            "provenance_columns": {k: t.__name__ for k, t in PROVENANCE_COLUMNS.items()},
+            "units": {"positions": "m", "angles": "rad", "path_length": "cm", "control_period_s": 1 / FPS},
+        })
+        side.setdefault("created_at", side["updated_at"])
+        sessions = side.setdefault("sessions", [])
+        if sessions and sessions[-1].get("started_at") == self._session.get("started_at"):
+            sessions[-1] = dict(self._session)
+        else:
+            sessions.append(dict(self._session))
+        if checkpoint:
+            # The last consistent info.json: repair() falls back to it if info.json itself was cut short.
+            info_text = (self.root / INFO_PATH).read_text()
+            side["checkpoint"] = {"at": utc_now_iso(), "episodes": self._durable, "info": json.loads(info_text)}
+        _write_json_atomic(self.root / SIDECAR_PATH, side)
+
+
+_LEROBOT_DEFAULT_FEATURES = ("timestamp", "frame_index", "episode_index", "index", "task_index")
+
+
+def _raise_for_signal(signum: int) -> None:
+    if signum == signal.SIGINT:
+        raise KeyboardInterrupt
+    raise SystemExit(128 + signum)  # like the default SIGTERM exit status, but unwinds through `finally`
+
+
+# ---------------------------------------------------------------------- dataset card
+
+
+def write_dataset_card(root: str | Path) -> Path:
+    """Write ``README.md`` (Hugging Face dataset card: YAML header, then task, sources, skills, proficiency)."""
+    root = Path(root)
+    s = summarize(root)
+    side = s["sidecar"]
+    task = side.get("task", ", ".join(s["tasks"]))
+    tags = ["LeRobot", "surrol_data", "surgical-robotics", "dvrk", "pybullet"] + ([task] if task else [])
+    lines = ["---", "task_categories:", "- robotics", "tags:", *[f"- {t}" for t in tags],
+             "configs:", "- config_name: default", "  data_files: data/*/*.parquet", "---", "",
+             f"# {side.get('repo_id', root.name)}", "",
+             f"Simulated da Vinci Research Kit demonstrations recorded with surrol_data "
+             f"{side.get('package_version', '')} as a LeRobot {s['codebase_version']} dataset "
+             f"(surrol_data schema {side.get('schema_version', '?')}).", "",
+             "## Task", "",
+             f"- task: **{task or '–'}**, env id `{side.get('env_id', '–')}`, robot `{s['robot_type'] or '–'}`",
+             f"- instruction: \"{side.get('task_description', '')}\"",
+             f"- {s['episodes']} episodes, {s['frames']} frames at {s['fps']} fps ({s['duration_s']:.0f} s)", ""]
+
+    def nan(v, fmt="{:.1f}"):
+        return "–" if v != v else fmt.format(v)
+
+    if s["has_provenance"] and s["episodes"]:
+        from surrol_data.datasets.reader import DatasetReader
+
+        eps = DatasetReader(root).episodes
+        lines += ["## Sources", "", "| source | device | episodes |", "|---|---|---|"]
+        for (src, dev), n in Counter(zip(eps["source"], eps["device"], strict=True)).most_common():
+            lines.append(f"| {src} | {dev} | {n} |")
+        lines += ["", "## Operators and skills", "", "| skill | operator | simulated | episodes |", "|---|---|---|---|"]
+        for (skill, op, sim), n in Counter(zip(eps["skill"], eps["operator_id"], eps["operator_simulated"],
+                                               strict=True)).most_common():
+            lines.append(f"| {skill} | {op or '–'} | {'yes' if sim else 'no'} | {n} |")
+        o = s["overall"]
+        lines += ["", "## Proficiency", "",
+                  f"Success rate {nan(100 * o['success_rate'])} %, mean steps to success "
+                  f"{nan(o['mean_steps_to_success'])}, mean path length {nan(o['mean_path_length_cm'])} cm "
+                  "(steps and path over successful episodes), mean jaw closures "
+                  f"{nan(o['mean_jaw_closures'], '{:.2f}')}.", "",
+                  "| source | device | skill | operator | episodes | success % | steps to success | path (cm) | jaw closures |",
+                  "|---|---|---|---|---|---|---|---|---|"]
+        for g in s["groups"]:
+            lines.append(f"| {g['source']} | {g['device']} | {g['skill']} | {g['operator_id'] or '–'} | "
+                         f"{g['episodes']} | {nan(100 * g['success_rate'])} | {nan(g['mean_steps_to_success'])} | "
+                         f"{nan(g['mean_path_length_cm'])} | {nan(g['mean_jaw_closures'], '{:.2f}')} |")
+        lines.append("")
+    commands = list(dict.fromkeys(sess.get("command", "") for sess in side.get("sessions", []) if sess.get("command")))
+    if commands:
+        lines += ["## How it was recorded", "", "```", *commands, "```", ""]
+    lines += ["## Structure", "",
+              "Per frame: `observation.*` (s_t), `action`, `next.reward`, `next.done` (env terminated), "
+              "`next.success`, `next.observation.*` (s_{t+1}), and `complementary_info.*` (tool-tip position in m, "
+              "jaw angle in rad, clutch and jaw buttons). Per episode: `provenance/*` columns in `meta/episodes` "
+              "(filter with LeRobot's `episode_filter`). Read with `surrol_data.datasets.reader.DatasetReader`.", "",
+              "| feature | dtype | shape |", "|---|---|---|"]
+    lines += [f"| `{k}` | {v['dtype']} | {tuple(v['shape'])} |" for k, v in s["features"].items()]
+    path = root / "README.md"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+# ---------------------------------------------------------------------- repair
+
+
+def repair(root: str | Path) -> dict:
+    """Make a dataset left by a hard-killed recorder (SIGKILL, power loss) readable again.
+
+    Keeps the longest run of episodes 0..k-1 whose metadata and frames are in readable files (with a
+    checkpointing :class:`DatasetRecorder`, every episode completed before its last checkpoint). Unreadable
+    or orphaned files are moved to ``<root>/.surrol_data_repair/<time>/`` (delete it once satisfied);
+    info.json, stats.json, tasks.parquet, the sidecar and the card are rewritten. Returns a report dict:
+    episodes_kept, episodes_dropped, frames, moved (relative paths), backup_dir (or None if nothing was
+    wrong).
+    """
+    root = Path(root)
+    if not (root / "meta").is_dir():
+        raise DatasetError(f"{root} is not a LeRobot dataset (no meta/ folder); nothing to repair")
+    info = _load_info_for_repair(root)
+    stamp = time.strftime("%Y%m%dT%H%M%S")
+    backup = root / REPAIR_DIR / stamp
+    n = 0
+    while backup.exists():  # never mix two repairs' files
+        n += 1
+        backup = root / REPAIR_DIR / f"{stamp}-{n}"
+    moved: list[str] = []
+
+    def move_aside(path: Path) -> None:
+        rel = path.relative_to(root)
+        dest = backup / rel
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        shutil.move(str(path), str(dest))
+        moved.append(str(rel))
+
+    for path in unreadable_parquet_files(root):
+        move_aside(path)
+
+    meta_files = parquet_files(root, EPISODES_DIR)
+    meta = pa.concat_tables([pq.read_table(p) for p in meta_files], promote_options="default") if meta_files else None
+    data_counts: Counter = Counter()
+    data_file_of: dict[tuple[int, int], Path] = {}
+    for path in parquet_files(root, DATA_DIR):
+        chunk, file = int(path.parent.name.split("-")[1]), int(path.stem.split("-")[1])
+        data_file_of[(chunk, file)] = path
+        for ep, n in Counter(pq.read_table(path, columns=["episode_index"]).column(0).to_pylist()).items():
+            data_counts[(chunk, file, ep)] += n
+
+    video_keys = [k for k, ft in info["features"].items() if ft["dtype"] == "video"]
+    rows = {} if meta is None else {r["episode_index"]: r for r in meta.to_pylist()}
+    kept = 0
+    while kept in rows:
+        r = rows[kept]
+        where = (r["data/chunk_index"], r["data/file_index"])
+        if where not in data_file_of or data_counts[(*where, kept)] != r["length"]:
+            break
+        if not all((root / info["video_path"].format(video_key=v, chunk_index=r[f"videos/{v}/chunk_index"],
+                                                        file_index=r[f"videos/{v}/file_index"])).exists()
+                   for v in video_keys):
+            break
+        kept += 1
+
+    total_before = int(info.get("total_episodes", 0))
+    frames_on_disk = sum(data_counts.values())
+    kept_rows = [rows[i] for i in range(kept)]
+    frames = int(sum(r["length"] for r in kept_rows))
+    needs_rewrite = moved or kept != total_before or len(rows) != kept or frames_on_disk != frames
+    if not needs_rewrite:
+        return {"episodes_kept": kept, "episodes_dropped": 0, "frames": frames, "moved": [], "backup_dir": None}
+
+    # Drop rows of lost episodes from files that survived (e.g. a data file that rolled over before the kill).
+    for path in parquet_files(root, EPISODES_DIR):
+        table = pq.read_table(path)
+        keep = pc.less(table.column("episode_index"), kept)
+        if pc.all(keep).as_py():
+            continue
+        filtered = table.filter(keep)
+        move_aside(path)
+        if filtered.num_rows:
+            pq.write_table(filtered, path)
+    for path in parquet_files(root, DATA_DIR):
+        table = pq.read_table(path)
+        keep = pc.less(table.column("episode_index"), kept)
+        if pc.all(keep).as_py():
+            continue
+        filtered = table.filter(keep)
+        move_aside(path)
+        if filtered.num_rows:
+            _write_one_row_group_per_episode(filtered, path)
+    referenced = {str(Path(info["video_path"].format(video_key=v, chunk_index=r[f"videos/{v}/chunk_index"],
+                                                     file_index=r[f"videos/{v}/file_index"])))
+                  for r in kept_rows for v in video_keys}
+    if (root / "videos").is_dir():
+        for path in sorted((root / "videos").rglob("*.mp4")):
+            if str(path.relative_to(root)) not in referenced:
+                move_aside(path)
+    if (root / "images").is_dir():  # PNG staging of the episode in progress
+        move_aside(root / "images")
+
+    _rewrite_metadata(root, info, kept_rows)
+    side = read_sidecar(root)
+    side.setdefault("repairs", []).append({"at": utc_now_iso(), "episodes_kept": kept,
+                                           "episodes_dropped": max(total_before, len(rows)) - kept,
+                                           "backup_dir": str(backup.relative_to(root))})
+    _write_json_atomic(root / SIDECAR_PATH, side)
+    write_dataset_card(root)
+    return {"episodes_kept": kept, "episodes_dropped": max(total_before, len(rows)) - kept, "frames": frames,
+            "moved": moved, "backup_dir": str(backup)}
+
+
+def _load_info_for_repair(root: Path) -> dict:
+    try:
+        return json.loads((root / INFO_PATH).read_text())
+    except (OSError, json.JSONDecodeError):
+        saved = read_sidecar(root).get("checkpoint", {}).get("info")
+        if saved is None:
+            raise DatasetError(f"{root / INFO_PATH} is missing or corrupt and {SIDECAR_PATH} holds no checkpoint "
+                               "copy of it; this dataset cannot be repaired automatically") from None
+        return saved
+
+
+def _write_one_row_group_per_episode(table: pa.Table, path: Path) -> None:
+    # The reader (and LeRobot's own layout) expects one row group per episode.
+    episodes = table.column("episode_index").to_numpy()
+    with pq.ParquetWriter(path, table.schema, compression="snappy", use_dictionary=True) as writer:
+        for ep in np.unique(episodes):
+            idx = np.flatnonzero(episodes == ep)
+            writer.write_table(table.slice(int(idx[0]), len(idx)))
+
+
+def _rewrite_metadata(root: Path, info: dict, kept_rows: list[dict]) -> None:
+    """info.json totals, stats.json (re-aggregated from the kept episodes' stats) and tasks.parquet."""
+    from lerobot.datasets.compute_stats import aggregate_stats
+    from lerobot.datasets.io_utils import write_stats
+
+    tasks: list[str] = []
+    for r in kept_rows:
+        tasks += [t for t in r["tasks"] if t not in tasks]
+    tasks_path = root / "meta" / "tasks.parquet"
+    try:
+        existing = pq.read_table(tasks_path).to_pandas()
+        task_ok = set(tasks) <= set(existing.index if "task" not in existing.columns else existing["task"])
+    except (OSError, pa.ArrowInvalid):
+        task_ok = False
+    if not task_ok:
+        import pandas as pd
+
+        # LeRobot assigns task indices in order of first appearance, which this reproduces.
+        pd.DataFrame({"task_index": range(len(tasks))}, index=pd.Index(tasks, name="task")).to_parquet(tasks_path)
+
+    info = dict(info)
+    info["total_episodes"] = len(kept_rows)
+    info["total_frames"] = int(sum(r["length"] for r in kept_rows))
+    info["total_tasks"] = len(pq.read_table(tasks_path))
+    info["splits"] = {"train": f"0:{len(kept_rows)}"}
+    _write_json_atomic(root / INFO_PATH, info)
+
+    episode_stats = []
+    for r in kept_rows:
+        stats: dict[str, dict] = {}
+        for key, value in r.items():
+            if key.startswith("stats/") and value is not None:
+                _, feature, stat = key.split("/", 2)
+                stats.setdefault(feature, {})[stat] = np.asarray(value)
+        episode_stats.append(stats)
+    if episode_stats:
+        write_stats(aggregate_stats(episode_stats), root)
+    elif (root / "meta" / "stats.json").exists():
+        (root / "meta" / "stats.json").unlink()

@@ -1,0 +1,89 @@
+"""Scripted demonstrations: roll each task's linear-waypoint oracle and record the episodes with provenance."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+from tqdm import tqdm
+
+from surrol_data.collect.recorder import DatasetRecorder
+from surrol_data.datasets.schema import frame_features
+from surrol_data.envs import env_id as make_env_id
+from surrol_data.evaluation.rollout import ORACLE, rollout
+
+
+@dataclass
+class CollectResult:
+    root: Path
+    kept: int = 0
+    attempts: int = 0
+    failures: int = 0
+    seeds: list[int] = field(default_factory=list)
+
+    @property
+    def success_rate(self) -> float:
+        return (self.attempts - self.failures) / self.attempts if self.attempts else float("nan")
+
+
+def features_for(env: gym.Env) -> dict:
+    spaces = env.observation_space
+    n_arms = env.action_space.shape[0] // 5
+    return frame_features(obs_dim=spaces["observation"].shape[0], goal_dim=spaces["desired_goal"].shape[0],
+                          act_dim=env.action_space.shape[0], n_arms=n_arms)
+
+
+def collect_script(task: str, episodes: int, out: str | Path, seed: int = 0, max_steps: int | None = None,
+                   keep_failures: bool = False, append: bool = False, max_attempts: int | None = None,
+                   progress: bool = True, command: str | None = None) -> CollectResult:
+    """Record ``episodes`` oracle episodes of ``task`` into the LeRobot dataset at ``out``.
+
+    Attempt ``i`` uses seed ``seed + i``; an attempt is kept when it succeeded at some step (the original
+    generator's rule), or always with ``keep_failures``. Gives up after ``max_attempts`` (default 3×).
+    """
+    if episodes <= 0:
+        raise ValueError(f"--episodes must be positive, got {episodes}")
+    import surrol_data.envs  # noqa: F401  (registers the ids)
+
+    eid = make_env_id(task)
+    kwargs = {"max_episode_steps": max_steps} if max_steps else {}
+    env = gym.make(eid, **kwargs)
+    task_name = eid.split("/")[1].rsplit("-v", 1)[0]
+    result = CollectResult(root=Path(out))
+    max_attempts = max_attempts or 3 * episodes
+    recorder = DatasetRecorder(out, task=task_name, env_id=eid, task_description=env.unwrapped.TASK,
+                               features=features_for(env), append=append, command=command)
+    bar = tqdm(total=episodes, desc=f"collect {task_name} (script)", unit="ep", disable=not progress)
+    try:
+        with recorder:
+            while result.kept < episodes and result.attempts < max_attempts:
+                s = seed + result.attempts
+                t0 = time.perf_counter()
+                traj = rollout(env, ORACLE, s)
+                result.attempts += 1
+                if not traj.is_success:
+                    result.failures += 1
+                    if not keep_failures:
+                        continue
+                recorder.record(traj, {
+                    "source": "script", "device": "none", "operator_id": "oracle", "skill": "scripted",
+                    "operator_simulated": False, "operator_params": "{}", "device_settings": "{}",
+                    "seed": s, "duration_s": time.perf_counter() - t0,
+                })
+                result.kept += 1
+                result.seeds.append(s)
+                bar.update(1)
+                bar.set_postfix(success=f"{result.success_rate:.2f}", refresh=False)
+    finally:
+        bar.close()
+        env.close()
+    if result.kept < episodes:
+        raise RuntimeError(f"only {result.kept} of {episodes} oracle episodes of {task_name} succeeded in "
+                           f"{result.attempts} attempts (kept episodes are saved in {out}); "
+                           "use --keep-failures to record failures too")
+    return result
+
+

@@ -1,0 +1,144 @@
+"""What is in a dataset: totals and a provenance breakdown (for ``surrol-data info DIR`` and the dataset card).
+
+Proficiency means follow :func:`surrol_data.evaluation.metrics.summarize`: steps to success and path
+length are averaged over the *successful* episodes of a group (an unsuccessful episode has no steps to
+success, and its path is not comparable); jaw closures over all episodes.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from surrol_data.datasets.reader import DatasetReader
+from surrol_data.datasets.schema import SIDECAR_PATH
+
+GROUP_BY = ("source", "device", "skill", "operator_id")
+
+
+def _mean(values) -> float:
+    values = [float(v) for v in values if v is not None and np.isfinite(v)]
+    return float(np.mean(values)) if values else float("nan")
+
+
+def _group_stats(rows) -> dict:
+    ok = rows[rows["success"]] if len(rows) else rows
+    return {
+        "episodes": int(len(rows)),
+        "frames": int(rows["length"].sum()),
+        "success_rate": float(rows["success"].mean()) if len(rows) else float("nan"),
+        "mean_steps_to_success": _mean(ok["steps_to_success"]),
+        "mean_path_length_cm": _mean(ok["path_length_cm"]),
+        "mean_jaw_closures": _mean(rows["jaw_closures"]),
+    }
+
+
+def read_sidecar(root: str | Path) -> dict:
+    """``meta/surrol_data.json`` (dataset-level facts written by the recorder), ``{}`` if absent or broken."""
+    path = Path(root) / SIDECAR_PATH
+    try:
+        return json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return {}
+
+
+def summarize(root: str | Path) -> dict:
+    """Totals, features and a per-(source, device, skill, operator_id) breakdown of a dataset.
+
+    Keys: root, codebase_version, robot_type, fps, episodes, frames, duration_s (frames / fps), tasks,
+    features (name -> {dtype, shape}), sidecar (meta/surrol_data.json), has_provenance, overall (the
+    group stats of all episodes) and groups (list of dicts: the GROUP_BY keys + episodes, frames,
+    success_rate, mean_steps_to_success, mean_path_length_cm, mean_jaw_closures).
+    """
+    reader = DatasetReader(root)
+    info = reader.info
+    eps = reader.episodes
+    tasks = sorted(set(eps["task"])) if "task" in eps.columns else []
+    needed = {*GROUP_BY, "success", "steps_to_success", "path_length_cm", "jaw_closures"}
+    has_provenance = needed <= set(eps.columns)
+    summary = {
+        "root": str(Path(root)),
+        "codebase_version": info.get("codebase_version", ""),
+        "robot_type": info.get("robot_type") or "",
+        "fps": int(info["fps"]),
+        "episodes": int(len(eps)),
+        "frames": int(eps["length"].sum()),
+        "duration_s": float(eps["length"].sum()) / int(info["fps"]),
+        "tasks": tasks,
+        "features": {k: {"dtype": v["dtype"], "shape": list(v["shape"])} for k, v in info["features"].items()},
+        "sidecar": read_sidecar(root),
+        "has_provenance": has_provenance,
+        "overall": _group_stats(eps) if has_provenance else {"episodes": int(len(eps)),
+                                                             "frames": int(eps["length"].sum())},
+        "groups": [],
+    }
+    if has_provenance and len(eps):
+        for key, rows in eps.groupby(list(GROUP_BY), sort=True):
+            summary["groups"].append({**dict(zip(GROUP_BY, key, strict=True)), **_group_stats(rows)})
+    return summary
+
+
+def _fmt(value: float, digits: int = 1) -> str:
+    return "–" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
+
+
+def render_info(root: str | Path):
+    """A rich renderable (tables) of :func:`summarize`; print it with ``rich.console.Console().print``."""
+    from rich.console import Group
+    from rich.table import Table
+
+    s = summarize(root)
+    totals = Table(title=f"Dataset {s['root']}", show_header=False)
+    totals.add_column("", style="bold")
+    totals.add_column("")
+    side = s["sidecar"]
+    for label, value in (
+        ("format", f"LeRobot {s['codebase_version']}" + (f", surrol_data schema {side['schema_version']}"
+                                                          if "schema_version" in side else "")),
+        ("task", ", ".join(s["tasks"]) or side.get("task", "–")),
+        ("env id", side.get("env_id", "–")),
+        ("robot", s["robot_type"] or "–"),
+        ("episodes", str(s["episodes"])),
+        ("frames", f"{s['frames']} ({s['duration_s']:.1f} s at {s['fps']} fps)"),
+    ):
+        totals.add_row(label, value)
+    if s["has_provenance"]:
+        o = s["overall"]
+        totals.add_row("success rate", _fmt(100 * o["success_rate"]) + " %")
+        totals.add_row("mean steps to success", _fmt(o["mean_steps_to_success"]))
+        totals.add_row("mean path length", _fmt(o["mean_path_length_cm"]) + " cm")
+
+    features = Table(title="Features")
+    for col in ("name", "dtype", "shape"):
+        features.add_column(col)
+    for name, ft in s["features"].items():
+        features.add_row(name, ft["dtype"], "×".join(str(d) for d in ft["shape"]))
+
+    parts = [totals, features]
+    if s["has_provenance"]:
+        groups = Table(title="Provenance", caption="ok % = success rate; steps to success and path length "
+                       "averaged over successful episodes; jaw = mean jaw closures")
+        for col in GROUP_BY:
+            groups.add_column("operator" if col == "operator_id" else col, overflow="fold")  # never truncate ids
+        for col in ("eps", "frames", "ok %", "steps", "path cm", "jaw"):
+            groups.add_column(col, justify="right", no_wrap=True)
+        for g in s["groups"]:
+            groups.add_row(*(g[k] or "–" for k in GROUP_BY), str(g["episodes"]), str(g["frames"]),
+                           _fmt(100 * g["success_rate"]), _fmt(g["mean_steps_to_success"]),
+                           _fmt(g["mean_path_length_cm"]), _fmt(g["mean_jaw_closures"], 2))
+        parts.append(groups)
+    return Group(*parts)
+
+
+def render_info_text(root: str | Path, width: int = 120) -> str:
+    """:func:`render_info` as plain text (logs, tests)."""
+    import io
+
+    from rich.console import Console
+
+    console = Console(file=io.StringIO(), width=width, color_system=None, record=True)
+    console.print(render_info(root))
+    return console.export_text()

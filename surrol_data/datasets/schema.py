@@ -1,0 +1,278 @@
+"""The on-disk contract of a surrol_data dataset, in one place.
+
+A dataset is a LeRobot v3 dataset (written by the real ``lerobot`` package) with
+
+* **per-frame features** from :func:`frame_features`: frame ``t`` holds the observation ``s_t``, the action
+  ``a_t``, the reward/done/success that followed it, and ``s_{t+1}`` under ``next.observation.*`` so a
+  reader rebuilds every transition, the last one included, without peeking into the next row;
+* **per-episode provenance**: the :data:`PROVENANCE_COLUMNS`, stored as extra columns
+  ``provenance/<name>`` of ``meta/episodes/*.parquet`` (so LeRobot's ``episode_filter`` sees them);
+* a sidecar ``meta/surrol_data.json`` with dataset-level facts (:data:`SCHEMA_VERSION`, task, env id ...).
+
+Mapping from a :class:`~surrol_data.datasets.trajectory.Trajectory` (T actions) to frames ``t = 0..T-1``:
+
+=========================================  =====================================================
+``observation.state`` / ``achieved_goal`` / ``desired_goal``   ``observation[t]`` / ...
+``next.observation.*``                      ``observation[t+1]`` / ...
+``action``, ``next.reward``, ``next.success``   ``action[t]``, ``reward[t]``, ``success[t]``
+``next.done``                               ``terminated[t]`` — the MDP ended (don't bootstrap). A
+                                            time-limit truncation is *not* done; the episode's end
+                                            is given by the episode boundaries.
+``complementary_info.tip_position``         ``tip_position[t]`` flattened (n_arms*3), metres
+``complementary_info.jaw_angle``            ``jaw_angle[t]``, radians
+``complementary_info.next_tip_position``,   the same after the action (row ``t+1``), so the
+``complementary_info.next_jaw_angle``       proficiency metrics see the whole path
+``complementary_info.clutch`` / ``jaw_button``  device flags ``flags[...][t]``
+``observation.images.<camera>`` (video)     ``images[camera][t]`` (the image of ``s_T`` is not stored)
+=========================================  =====================================================
+
+Bookkeeping lives under ``complementary_info.*`` because LeRobot treats every ``observation.*`` key as a
+policy input.
+"""
+
+from __future__ import annotations
+
+import json
+from datetime import datetime, timezone
+
+import numpy as np
+
+from surrol_data.datasets.trajectory import DEVICE_FLAGS
+
+SCHEMA_VERSION = 1
+FPS = 5  # 1 / envs.units.CONTROL_PERIOD_S; LeRobot wants an int
+PROVENANCE_PREFIX = "provenance/"
+SIDECAR_PATH = "meta/surrol_data.json"
+
+# Ordered name -> python type. Every column has exactly one type and never holds None (use "", -1, nan),
+# because the episodes parquet schema is fixed by the first episode and pandas/pyarrow would otherwise
+# turn a column into object/null types that break filtering and appending.
+PROVENANCE_COLUMNS: dict[str, type] = {
+    "source": str,              # script | haptic | policy
+    "device": str,              # touch | keyboard | gamepad | spacemouse | replay | simulated-operator | none
+    "operator_id": str,
+    "skill": str,               # expert | novice | scripted | unknown
+    "operator_simulated": bool,
+    "operator_params": str,     # JSON
+    "device_settings": str,     # JSON: scaling, axis map, ...
+    "task": str,
+    "env_id": str,
+    "seed": int,
+    "success": bool,
+    "steps_to_success": int,    # -1 if never
+    "path_length_cm": float,
+    "jaw_closures": int,
+    "clutch_uses": int,
+    "episode_steps": int,
+    "recorded_at": str,         # ISO-8601 UTC
+    "duration_s": float,        # wall time of the episode, nan if unknown
+    "package_version": str,
+    "git_commit": str,          # "" if unknown
+    "command": str,             # the command line that recorded the episode
+}
+
+PROVENANCE_CHOICES: dict[str, tuple[str, ...]] = {
+    "source": ("script", "haptic", "policy"),
+    "device": ("touch", "keyboard", "gamepad", "spacemouse", "replay", "simulated-operator", "none"),
+    "skill": ("expert", "novice", "scripted", "unknown"),
+}
+
+# Columns the caller must state: nothing sensible can be guessed for them.
+REQUIRED_PROVENANCE = ("source", "device", "skill", "task", "env_id", "seed")
+
+# Columns derived from the trajectory by metrics.trajectory_proficiency when the caller does not give them.
+METRIC_COLUMNS = ("success", "steps_to_success", "path_length_cm", "jaw_closures", "clutch_uses", "episode_steps")
+
+_DEFAULTS: dict[str, object] = {
+    "operator_id": "",
+    "operator_simulated": False,
+    "operator_params": "{}",
+    "device_settings": "{}",
+    "duration_s": float("nan"),
+    "git_commit": "",
+    "command": "",
+}
+
+_DOF_NAMES = ("dx", "dy", "dz", "dyaw", "jaw")
+
+
+class ProvenanceError(ValueError):
+    """A provenance dict does not follow :data:`PROVENANCE_COLUMNS`."""
+
+
+def _arm_prefixes(n_arms: int) -> list[str]:
+    return [""] if n_arms == 1 else [f"psm{i + 1}_" for i in range(n_arms)]
+
+
+def _goal_names(goal_dim: int) -> list[str]:
+    if goal_dim == 3:
+        return ["x", "y", "z"]
+    if goal_dim % 3 == 0:
+        return [f"obj{i}_{c}" for i in range(goal_dim // 3) for c in "xyz"]
+    return [f"g{i}" for i in range(goal_dim)]
+
+
+def _action_names(act_dim: int, n_arms: int) -> list[str]:
+    if act_dim == len(_DOF_NAMES) * n_arms:
+        return [p + d for p in _arm_prefixes(n_arms) for d in _DOF_NAMES]
+    return [f"a{i}" for i in range(act_dim)]
+
+
+def _vector(dtype: str, names: list[str] | None, dim: int | None = None) -> dict:
+    return {"dtype": dtype, "shape": (dim if dim is not None else len(names),), "names": names}
+
+
+def frame_features(obs_dim: int, goal_dim: int, act_dim: int, n_arms: int,
+                   cameras: dict[str, tuple[int, int]] | None = None,
+                   state_names: list[str] | None = None) -> dict[str, dict]:
+    """LeRobot ``features`` dict for one frame (see the module docstring for what each key holds).
+
+    ``cameras`` maps a camera name to its (height, width); each becomes a ``video`` feature
+    ``observation.images.<name>``. ``state_names`` names the ``obs_dim`` entries of the state vector.
+    """
+    for name, value in (("obs_dim", obs_dim), ("goal_dim", goal_dim), ("act_dim", act_dim), ("n_arms", n_arms)):
+        if not isinstance(value, (int, np.integer)) or value < 1:
+            raise ValueError(f"frame_features: {name} must be a positive int, got {value!r}")
+    if state_names is None:
+        state_names = [f"s{i}" for i in range(obs_dim)]
+    if len(state_names) != obs_dim:
+        raise ValueError(f"frame_features: state_names has {len(state_names)} names, obs_dim is {obs_dim}")
+    goal = _goal_names(goal_dim)
+    arms = _arm_prefixes(n_arms)
+    tip = [p + "tip_" + c for p in arms for c in "xyz"]
+    jaw = [p + "jaw" for p in arms]
+    features = {
+        "observation.state": _vector("float32", list(state_names)),
+        "observation.achieved_goal": _vector("float32", goal),
+        "observation.desired_goal": _vector("float32", goal),
+        "action": _vector("float32", _action_names(act_dim, n_arms)),
+        "next.reward": _vector("float32", None, 1),
+        "next.done": _vector("bool", None, 1),
+        "next.success": _vector("bool", None, 1),
+        "next.observation.state": _vector("float32", list(state_names)),
+        "next.observation.achieved_goal": _vector("float32", goal),
+        "next.observation.desired_goal": _vector("float32", goal),
+        "complementary_info.tip_position": _vector("float32", tip),
+        "complementary_info.jaw_angle": _vector("float32", jaw),
+        "complementary_info.next_tip_position": _vector("float32", tip),
+        "complementary_info.next_jaw_angle": _vector("float32", jaw),
+    }
+    for flag in DEVICE_FLAGS:
+        features[f"complementary_info.{flag}"] = _vector("bool", None, 1)
+    for cam, hw in (cameras or {}).items():
+        if "/" in cam or not cam:
+            raise ValueError(f"frame_features: camera name {cam!r} must be non-empty and contain no '/'")
+        h, w = (int(v) for v in hw)
+        features[f"observation.images.{cam}"] = {"dtype": "video", "shape": (h, w, 3),
+                                                 "names": ["height", "width", "channels"]}
+    return features
+
+
+def dims_from_features(features: dict) -> dict:
+    """Inverse of :func:`frame_features` for the dimensions: obs_dim, goal_dim, act_dim, n_arms, cameras."""
+    try:
+        return {
+            "obs_dim": int(features["observation.state"]["shape"][0]),
+            "goal_dim": int(features["observation.desired_goal"]["shape"][0]),
+            "act_dim": int(features["action"]["shape"][0]),
+            "n_arms": int(features["complementary_info.jaw_angle"]["shape"][0]),
+            "cameras": {k.removeprefix("observation.images."): tuple(int(v) for v in ft["shape"][:2])
+                        for k, ft in features.items() if k.startswith("observation.images.")},
+        }
+    except KeyError as e:
+        raise ValueError(f"features lack {e.args[0]!r}: not a surrol_data frame schema (see frame_features)") from None
+
+
+def utc_now_iso() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds").replace("+00:00", "Z")
+
+
+def _coerce(key: str, value, expected: type):
+    """Value as exactly ``expected`` or ProvenanceError. Numpy scalars are accepted; lossy casts are not."""
+    bad = ProvenanceError(f"provenance[{key!r}] = {value!r} ({type(value).__name__}): expected {expected.__name__}"
+                          + (" (use -1 / nan / '' for 'unknown', never None)" if value is None else ""))
+    if expected is bool:
+        if isinstance(value, (bool, np.bool_)):
+            return bool(value)
+        raise bad
+    if expected is int:
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+            raise bad
+        return int(value)
+    if expected is float:
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+            raise bad
+        return float(value)
+    if expected is str:
+        if key in ("operator_params", "device_settings") and isinstance(value, (dict, list)):
+            # JSON text keeps the column a plain string whatever the device/operator puts in it.
+            return json.dumps(value, sort_keys=True, default=_json_default)
+        if isinstance(value, str):
+            return value
+        raise bad
+    raise TypeError(f"unsupported provenance type {expected}")  # pragma: no cover - schema bug
+
+
+def _json_default(obj):
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
+
+
+def normalize_provenance(provenance: dict, trajectory=None, defaults: dict | None = None) -> dict:
+    """Checked, complete provenance: every :data:`PROVENANCE_COLUMNS` key, in order, with its exact type.
+
+    ``defaults`` (e.g. the recorder's task, env id, command, git commit) fill keys the caller left out;
+    metric columns left out are computed from ``trajectory`` with
+    :func:`surrol_data.evaluation.metrics.trajectory_proficiency`; ``recorded_at`` defaults to now and
+    ``package_version`` to the installed surrol_data. Raises :class:`ProvenanceError` naming the bad key.
+    """
+    if not isinstance(provenance, dict):
+        raise ProvenanceError(f"provenance must be a dict, got {type(provenance).__name__}")
+    unknown = sorted(set(provenance) - set(PROVENANCE_COLUMNS))
+    if unknown:
+        raise ProvenanceError(f"unknown provenance key(s) {unknown}; allowed: {list(PROVENANCE_COLUMNS)}")
+    merged = {**_DEFAULTS, **(defaults or {}), **provenance}
+    missing_metrics = [k for k in METRIC_COLUMNS if k not in merged]
+    if missing_metrics:
+        if trajectory is None:
+            raise ProvenanceError(f"provenance lacks {missing_metrics} and no trajectory was given to compute them")
+        from surrol_data.evaluation.metrics import trajectory_proficiency
+
+        prof = trajectory_proficiency(trajectory)
+        computed = {"success": prof.success, "steps_to_success": prof.steps_to_success,
+                    "path_length_cm": prof.path_length_cm, "jaw_closures": prof.jaw_closures,
+                    "clutch_uses": prof.clutch_uses, "episode_steps": prof.steps}
+        merged.update({k: computed[k] for k in missing_metrics})
+    merged.setdefault("recorded_at", utc_now_iso())
+    merged.setdefault("package_version", package_version())
+    missing = [k for k in PROVENANCE_COLUMNS if k not in merged]
+    if missing:
+        raise ProvenanceError(f"provenance lacks required key(s) {missing}; required: {list(REQUIRED_PROVENANCE)}")
+    out = {key: _coerce(key, merged[key], typ) for key, typ in PROVENANCE_COLUMNS.items()}
+    for key, choices in PROVENANCE_CHOICES.items():
+        if out[key] not in choices:
+            raise ProvenanceError(f"provenance[{key!r}] = {out[key]!r}: expected one of {list(choices)}")
+    for key in ("operator_params", "device_settings"):
+        try:
+            json.loads(out[key])
+        except json.JSONDecodeError:
+            raise ProvenanceError(f"provenance[{key!r}] must be JSON text or a dict, got {out[key]!r}") from None
+    if out["steps_to_success"] < -1 or out["episode_steps"] < 0:
+        raise ProvenanceError(f"provenance steps_to_success={out['steps_to_success']} / episode_steps="
+                              f"{out['episode_steps']}: expected -1 or a step count, and a non-negative length")
+    if trajectory is not None and out["episode_steps"] != len(trajectory):
+        raise ProvenanceError(f"provenance['episode_steps'] = {out['episode_steps']} but the trajectory has "
+                              f"{len(trajectory)} steps")
+    return out
+
+
+def package_version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("surrol-data")
+    except PackageNotFoundError:
+        return "0+unknown"
