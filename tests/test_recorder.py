@@ -334,3 +334,37 @@ def test_sigkill_then_repair_recovers_checkpointed_episodes(tmp_path, LeRobotDat
     ds = LeRobotDataset("local/live", root=root, video_backend="pyav")
     assert ds.num_episodes == kept + 1
     assert list(ds.meta.episodes["provenance/seed"]) == [100 + i for i in range(kept + 1)]
+
+
+def test_repair_drops_episodes_whose_frames_are_lost(written, LeRobotDataset, tmp_path):
+    """A data file cut short (no footer) while later metadata survived; info.json cut short too."""
+    import shutil
+
+    root = tmp_path / "needle"
+    shutil.copytree(written[0], root)
+    trajs = written[1]
+    data_files = sorted((root / "data").rglob("*.parquet"))
+    assert len(data_files) == 3  # checkpoint_every=2 over 5 episodes: 0-1, 2-3, 4
+    raw = data_files[1].read_bytes()
+    data_files[1].write_bytes(raw[: len(raw) // 2])
+    info = (root / "meta" / "info.json").read_text()
+    (root / "meta" / "info.json").write_text(info[:40])
+
+    with pytest.raises(DatasetError, match="repair"):
+        DatasetReader(root)
+    report = repair(root)
+    assert (report["episodes_kept"], report["episodes_dropped"]) == (2, 3)
+    assert "data/chunk-000/file-001.parquet" in report["moved"]
+    assert Path(report["backup_dir"], "data/chunk-000/file-001.parquet").exists()  # moved aside, not deleted
+    ds = LeRobotDataset("local/needle", root=root, video_backend="pyav")
+    assert ds.num_episodes == 2 and ds.num_frames == len(trajs[0]) + len(trajs[1])
+    stats = json.loads((root / "meta" / "stats.json").read_text())
+    assert stats["action"]["count"] == [ds.num_frames]  # re-aggregated over the kept episodes only
+    reader = DatasetReader(root)
+    assert_same(reader.trajectory(1), trajs[1])
+    assert json.loads((root / "meta" / "surrol_data.json").read_text())["repairs"][-1]["episodes_kept"] == 2
+
+
+def test_repair_refuses_a_non_dataset(tmp_path):
+    with pytest.raises(DatasetError, match="not a LeRobot dataset"):
+        repair(tmp_path)

@@ -87,6 +87,7 @@ def _fmt(value: float, digits: int = 1) -> str:
 
 def render_info(root: str | Path):
     """A rich renderable (tables) of :func:`summarize`; print it with ``rich.console.Console().print``."""
+    from rich import box
     from rich.console import Group
     from rich.table import Table
 
@@ -119,8 +120,10 @@ def render_info(root: str | Path):
 
     parts = [totals, features]
     if s["has_provenance"]:
-        groups = Table(title="Provenance", caption="ok % = success rate; steps to success and path length "
-                       "averaged over successful episodes; jaw = mean jaw closures")
+        # borderless so that ten columns still fit an 80-column terminal
+        groups = Table(title="Provenance", box=box.SIMPLE_HEAD, pad_edge=False,
+                       caption="ok % = success rate; steps (to success) and path length averaged over "
+                               "successful episodes; jaw = mean jaw closures")
         for col in GROUP_BY:
             groups.add_column("operator" if col == "operator_id" else col, overflow="fold")  # never truncate ids
         for col in ("eps", "frames", "ok %", "steps", "path cm", "jaw"):

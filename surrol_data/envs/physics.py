@@ -19,7 +19,7 @@ import numpy as np
 from surrol_data.envs.units import CONTROL_PERIOD_S, SCALING
 
 GRAVITY = (0.0, 0.0, -9.81)
-SUBSTEPS = 8                      # physics steps per control period
+SUBSTEPS = 12                     # physics steps per control period
 TIME_STEP = CONTROL_PERIOD_S / SUBSTEPS
 SOLVER_ITERATIONS = 20
 SETTLE_STEPS = 4                  # physics steps after a reset before the first observation
@@ -29,8 +29,16 @@ SETTLE_STEPS = 4                  # physics steps after a reset before the first
 PSM_POSITION_GAIN = 0.4
 PSM_VELOCITY_GAIN = 1.0
 PSM_MAX_FORCE = (60.0, 60.0, 60.0, 10.0, 10.0, 10.0)          # N·m / N (scaled scene)
-PSM_MAX_VELOCITY = (1.0, 1.0, 0.2, 3.0, 3.0, 3.0)             # rad/s, m/s (real)
+# Tip speed stays near 5–7 cm/s (the env's largest action, 1 cm per 0.2 s, is 5 cm/s): a faster tip moves
+# more than a millimetre per physics step and sinks that deep into the pad before contact stops it.
+PSM_MAX_VELOCITY = (0.35, 0.35, 0.07, 3.0, 3.0, 3.0)         # rad/s, m/s (real)
 JAW_MAX_FORCE = 4.0
+# Link inertia (scaled scene). Links whose inertia about their joint is near zero make the articulated
+# solver ill-conditioned: contacts then swing the jaws and wrist far from their targets.
+PSM_LINK_MASS = 0.1
+PSM_LINK_INERTIA = 1e-2
+JAW_MASS = 0.1
+JAW_INERTIA = 1e-3
 JAW_MAX_VELOCITY = 4.0            # rad/s
 JAW_OPEN_RAD = np.deg2rad(40.0)   # the env's "open" jaw command
 JAW_CLOSED_RAD = 0.0
@@ -65,29 +73,33 @@ def configure(client: BulletClient) -> None:
 
 
 @contextlib.contextmanager
-def _stdout_silenced(enabled: bool = True):
-    """PyBullet's C code prints banner lines ("argv[0]=") on every connect; keep them out of progress output."""
+def _stdout_silenced(enabled: bool = True, fds: tuple[int, ...] = (1,)):
+    """PyBullet's C code prints banners (build time on import, "argv[0]=" on connect); keep them out of
+    progress output and logs by pointing the C-level file descriptors at /dev/null meanwhile."""
     if not enabled:
         yield
         return
     sys.stdout.flush()
+    sys.stderr.flush()
     try:
-        saved = os.dup(1)
-    except OSError:  # no real stdout (e.g. some notebook kernels): nothing to silence
+        saved = {fd: os.dup(fd) for fd in fds}
+    except OSError:  # no real file descriptors (some notebook kernels): nothing to silence
         yield
         return
     devnull = os.open(os.devnull, os.O_WRONLY)
     try:
-        os.dup2(devnull, 1)
+        for fd in fds:
+            os.dup2(devnull, fd)
         yield
     finally:
         with contextlib.suppress(Exception):
             ctypes.CDLL(None).fflush(None)  # C-level buffered prints go to /dev/null too
-        os.dup2(saved, 1)
-        os.close(saved)
+        for fd, copy in saved.items():
+            os.dup2(copy, fd)
+            os.close(copy)
         os.close(devnull)
 
 
-with _stdout_silenced():
+with _stdout_silenced(fds=(1, 2)):
     import pybullet as pb
     from pybullet_utils.bullet_client import BulletClient

@@ -87,7 +87,7 @@ class Psm:
             parents.append(i)  # PyBullet parent indices are 1-based into links (0 = base)
             joint_types.append(pb.JOINT_PRISMATIC if row[4] else pb.JOINT_REVOLUTE)
             axes.append([0, 0, 1])
-            masses.append(0.1)
+            masses.append(physics.PSM_LINK_MASS)
             cols.append(-1)
             viss.append(-1)
         # Visuals: the shaft hangs on the roll link (frame 4 sits at the shaft end; the shaft runs back along −z).
@@ -114,7 +114,7 @@ class Psm:
             parents.append(6)
             joint_types.append(pb.JOINT_REVOLUTE)
             axes.append([0, 0, 1])
-            masses.append(0.02)
+            masses.append(physics.JAW_MASS)
         # Tool tip: fixed frame, no collision.
         positions.append((kin.TOOL_TIP_OFFSET[:3, 3] * S).tolist())
         orientations.append(matrix_to_quat(kin.TOOL_TIP_OFFSET[:3, :3]))
@@ -138,10 +138,11 @@ class Psm:
             useMaximalCoordinates=False)
         for j in range(n):
             c.changeDynamics(body, j, linearDamping=0.0, angularDamping=0.0, jointDamping=0.0)
+        for j in ARM_JOINTS:
+            c.changeDynamics(body, j, localInertiaDiagonal=[physics.PSM_LINK_INERTIA] * 3)
         for j in JAW_JOINTS:
-            c.changeDynamics(body, j, lateralFriction=physics.JAW_FRICTION, spinningFriction=0.0)
-        # Free-moving joints would fall under gravity before the first command: disable default velocity motors
-        # by commanding them explicitly in reset().
+            c.changeDynamics(body, j, lateralFriction=physics.JAW_FRICTION, spinningFriction=0.0,
+                             localInertiaDiagonal=[physics.JAW_INERTIA] * 3)
         return body
 
     # ------------------------------------------------------------------ state
