@@ -121,15 +121,17 @@ def render_info(root: str | Path):
     parts = [totals, features]
     if s["has_provenance"]:
         # borderless so that ten columns still fit an 80-column terminal
-        groups = Table(title="Provenance", box=box.SIMPLE_HEAD, pad_edge=False,
+        groups = Table(title="Provenance", box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True,
                        caption="ok % = success rate; steps (to success) and path length averaged over "
                                "successful episodes; jaw = mean jaw closures")
         for col in GROUP_BY:
-            groups.add_column("operator" if col == "operator_id" else col, overflow="fold")  # never truncate ids
-        for col in ("eps", "frames", "ok %", "steps", "path cm", "jaw"):
+            # rich squeezes foldable columns first; keep ids readable (long ones fold instead of truncating)
+            longest = max([len(str(g[col] or "–")) for g in s["groups"]] + [6])
+            groups.add_column("operator" if col == "operator_id" else col, overflow="fold", min_width=min(longest, 12))
+        for col in ("eps", "ok %", "steps", "path cm", "jaw"):
             groups.add_column(col, justify="right", no_wrap=True)
         for g in s["groups"]:
-            groups.add_row(*(g[k] or "–" for k in GROUP_BY), str(g["episodes"]), str(g["frames"]),
+            groups.add_row(*(g[k] or "–" for k in GROUP_BY), str(g["episodes"]),
                            _fmt(100 * g["success_rate"]), _fmt(g["mean_steps_to_success"]),
                            _fmt(g["mean_path_length_cm"]), _fmt(g["mean_jaw_closures"], 2))
         parts.append(groups)

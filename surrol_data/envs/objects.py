@@ -119,8 +119,10 @@ def make_needle(client) -> int:
     # pose at the centre of mass, so use set_needle_pose/needle_pose to speak in needle-frame terms.
     body = client.createMultiBody(NEEDLE_MASS, col, vis, [0, 0, 0],
                                   baseInertialFramePosition=(NEEDLE_COM * SCALING).tolist())
+    # A needle at rest may sleep (contacts woken by the jaws or the grasp); most steps it just lies on the
+    # pad, and skipping its ten capsule contacts makes a control step ~25 % cheaper.
     client.changeDynamics(body, -1, lateralFriction=physics.OBJECT_FRICTION, rollingFriction=0.0,
-                          spinningFriction=0.001)
+                          spinningFriction=0.001, activationState=pb.ACTIVATION_STATE_ENABLE_SLEEPING)
     return body
 
 

@@ -1,0 +1,75 @@
+"""Env steps per second, camera off, one process: reset excluded and included, with oracle success.
+
+Usage: ``uv run python benchmarks/env_throughput.py [--episodes 20] [--repeats 3] [--tasks NeedlePick ...]``
+
+Each task runs ``episodes`` seeded oracle episodes per repeat; the table gives the median over repeats.
+The oracle's own compute is excluded from the step timing (as in the reference measurement), the gym
+wrappers (TimeLimit, order enforcing, checker) are included because users step through them.
+Baseline for the ratio: the original SurRoL measured on this 2-core machine kind
+(``shared/docs/reference/surrol-tasks.md`` §9.2: steps/s excluding reset).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import gymnasium as gym
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+import surrol_data.envs
+from surrol_data.envs import env_id
+
+REFERENCE_STEPS_PER_S = {"NeedleReach": 59.0, "NeedlePick": 63.0}
+
+
+def measure(task: str, episodes: int) -> dict:
+    env = gym.make(env_id(task))
+    oracle = env.unwrapped.oracle_action
+    step_time = reset_time = 0.0
+    steps = 0
+    successes = []
+    for seed in range(episodes):
+        t = time.perf_counter()
+        obs, info = env.reset(seed=seed)
+        reset_time += time.perf_counter() - t
+        truncated = False
+        while not truncated:
+            action = oracle(obs)
+            t = time.perf_counter()
+            obs, _, _, truncated, info = env.step(action)
+            step_time += time.perf_counter() - t
+            steps += 1
+        successes.append(info["is_success"])
+    env.close()
+    return {"excl": steps / step_time, "incl": steps / (step_time + reset_time),
+            "step_ms": 1000 * step_time / steps, "reset_ms": 1000 * reset_time / episodes,
+            "success": float(np.mean(successes))}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tasks", nargs="+", default=list(surrol_data.envs.TASKS))
+    parser.add_argument("--episodes", type=int, default=20)
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+
+    table = Table(title=f"env throughput (camera off, 1 process; median of {args.repeats} × {args.episodes} episodes)")
+    for col in ("task", "steps/s excl. reset", "steps/s incl. reset", "step ms", "reset ms",
+                "oracle final success", "reference steps/s", "speed-up"):
+        table.add_column(col, justify="left" if col == "task" else "right")
+    for task in args.tasks:
+        runs = [measure(task, args.episodes) for _ in range(args.repeats)]
+        med = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
+        ref = REFERENCE_STEPS_PER_S.get(task)
+        table.add_row(task, f"{med['excl']:.0f}", f"{med['incl']:.0f}", f"{med['step_ms']:.3f}",
+                      f"{med['reset_ms']:.2f}", f"{med['success']:.2f}", f"{ref:.0f}" if ref else "—",
+                      f"{med['excl'] / ref:.1f}×" if ref else "—")
+    Console(width=160).print(table)
+
+
+if __name__ == "__main__":
+    main()
