@@ -33,7 +33,7 @@ PAD_TOP_Z = TRAY_ORIGIN[2] + 0.0036 + 0.0026
 NEEDLE_RADIUS = 0.020
 NEEDLE_WIRE_RADIUS = 0.00062
 NEEDLE_MASS = 0.01
-NEEDLE_SEGMENTS = 10  # even: a capsule joint sits exactly at the mid-arc waypoint
+NEEDLE_SEGMENTS = 6   # even: a capsule joint sits exactly at the mid-arc waypoint; each capsule costs ~0.15 ms at reset
 NEEDLE_COM = np.array([-2 * NEEDLE_RADIUS / np.pi, 0.0, 0.0])
 # Waypoints in the needle frame (metres): 0 = arc centre, 1 = arc midpoint, 2/3 and 4/5 symmetric pairs.
 NEEDLE_WAYPOINTS = np.array([
@@ -44,20 +44,21 @@ NEEDLE_WAYPOINTS = np.array([
 ])
 
 
-def _box(client, half_extents_m, colour, mass=0.0, position_m=(0, 0, 0), friction=physics.OBJECT_FRICTION) -> int:
+def _box(client, half_extents_m, colour, mass=0.0, position_m=(0, 0, 0), friction=physics.OBJECT_FRICTION,
+         visual: bool = True) -> int:
     he = np.asarray(half_extents_m) * SCALING
     col = client.createCollisionShape(pb.GEOM_BOX, halfExtents=he.tolist())
-    vis = client.createVisualShape(pb.GEOM_BOX, halfExtents=he.tolist(), rgbaColor=colour)
+    vis = client.createVisualShape(pb.GEOM_BOX, halfExtents=he.tolist(), rgbaColor=colour) if visual else -1
     body = client.createMultiBody(mass, col, vis, (np.asarray(position_m) * SCALING).tolist())
     client.changeDynamics(body, -1, lateralFriction=friction)
     return body
 
 
-def make_table(client) -> int:
-    return _box(client, TABLE_HALF_EXTENTS, TABLE_COLOUR, position_m=TABLE_CENTRE)
+def make_table(client, visual: bool = True) -> int:
+    return _box(client, TABLE_HALF_EXTENTS, TABLE_COLOUR, position_m=TABLE_CENTRE, visual=visual)
 
 
-def make_tray(client, with_pad: bool, origin_m=TRAY_ORIGIN) -> int:
+def make_tray(client, with_pad: bool, origin_m=TRAY_ORIGIN, visual: bool = True) -> int:
     """A static tray: thin base, four low walls and (optionally) a foam pad, as one compound body."""
     mm = 1e-3
     parts = [  # (half extents, centre) in metres, tray frame
@@ -76,7 +77,7 @@ def make_tray(client, with_pad: bool, origin_m=TRAY_ORIGIN) -> int:
     n = len(parts)
     col = client.createCollisionShapeArray([pb.GEOM_BOX] * n, halfExtents=half, collisionFramePositions=centres)
     vis = client.createVisualShapeArray([pb.GEOM_BOX] * n, halfExtents=half, visualFramePositions=centres,
-                                        rgbaColors=colours)
+                                        rgbaColors=colours) if visual else -1
     body = client.createMultiBody(0.0, col, vis, (np.asarray(origin_m) * SCALING).tolist())
     client.changeDynamics(body, -1, lateralFriction=physics.OBJECT_FRICTION)
     return body
@@ -104,7 +105,14 @@ def _needle_geometry(client) -> NeedleGeometry:
     return NeedleGeometry(positions, orientations, length)
 
 
-def make_needle(client) -> int:
+def make_needle(client, visual: bool = True) -> int:
+    body = client.createMultiBody(**needle_spec(client, visual))
+    configure_needle(client, body)
+    return body
+
+
+def needle_spec(client, visual: bool = True) -> dict:
+    """Shapes and mass of the needle as ``createMultiBody`` arguments (reusable to respawn the body)."""
     g = _needle_geometry(client)
     n = len(g.positions)
     r = NEEDLE_WIRE_RADIUS * SCALING
@@ -114,16 +122,18 @@ def make_needle(client) -> int:
     vis = client.createVisualShapeArray([pb.GEOM_CAPSULE] * n, radii=[r] * n, lengths=[g.length] * n,
                                         visualFramePositions=g.positions,
                                         visualFrameOrientations=g.orientations,
-                                        rgbaColors=[NEEDLE_COLOUR] * n)
+                                        rgbaColors=[NEEDLE_COLOUR] * n) if visual else -1
     # The centre of mass sits on the symmetry axis at 2R/π from the arc centre; PyBullet reports the base
     # pose at the centre of mass, so use set_needle_pose/needle_pose to speak in needle-frame terms.
-    body = client.createMultiBody(NEEDLE_MASS, col, vis, [0, 0, 0],
-                                  baseInertialFramePosition=(NEEDLE_COM * SCALING).tolist())
+    return dict(baseMass=NEEDLE_MASS, baseCollisionShapeIndex=col, baseVisualShapeIndex=vis,
+                basePosition=[0, 0, 0], baseInertialFramePosition=(NEEDLE_COM * SCALING).tolist())
+
+
+def configure_needle(client, body: int) -> None:
     # A needle at rest may sleep (contacts woken by the jaws or the grasp); most steps it just lies on the
     # pad, and skipping its ten capsule contacts makes a control step ~25 % cheaper.
     client.changeDynamics(body, -1, lateralFriction=physics.OBJECT_FRICTION, rollingFriction=0.0,
                           spinningFriction=0.001, activationState=pb.ACTIVATION_STATE_ENABLE_SLEEPING)
-    return body
 
 
 def set_needle_pose(client, body: int, position_m, yaw: float) -> None:
@@ -146,6 +156,6 @@ def needle_rest_height() -> float:
     return PAD_TOP_Z + NEEDLE_WIRE_RADIUS
 
 
-def make_goal_marker(client, radius_m: float = 0.003, colour=(0.1, 0.9, 0.1, 0.8)) -> int:
-    vis = client.createVisualShape(pb.GEOM_SPHERE, radius=radius_m * SCALING, rgbaColor=colour)
+def make_goal_marker(client, radius_m: float = 0.003, colour=(0.1, 0.9, 0.1, 0.8), visual: bool = True) -> int:
+    vis = client.createVisualShape(pb.GEOM_SPHERE, radius=radius_m * SCALING, rgbaColor=colour) if visual else -1
     return client.createMultiBody(0.0, -1, vis, [0, 0, 0])

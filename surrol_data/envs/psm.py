@@ -63,8 +63,9 @@ def quat_to_matrix(client, q) -> np.ndarray:
 class Psm:
     """One PSM. Positions in and out are real metres in the world frame; the RCM pose is fixed at build."""
 
-    def __init__(self, client, rcm_position_m, rcm_yaw_rad: float = 0.0):
+    def __init__(self, client, rcm_position_m, rcm_yaw_rad: float = 0.0, visual: bool = True):
         self.client = client
+        self.visual = visual
         self.world_T_rcm = np.eye(4)
         self.world_T_rcm[:3, :3] = kin.rot_z3(rcm_yaw_rad)
         self.world_T_rcm[:3, 3] = rcm_position_m
@@ -92,14 +93,15 @@ class Psm:
             viss.append(-1)
         # Visuals: the shaft hangs on the roll link (frame 4 sits at the shaft end; the shaft runs back along −z).
         shaft_len = 0.40 * S
-        viss[3] = c.createVisualShape(pb.GEOM_CYLINDER, radius=0.004 * S, length=shaft_len,
+        vis_shape = c.createVisualShape if self.visual else (lambda *a, **k: -1)
+        viss[3] = vis_shape(pb.GEOM_CYLINDER, radius=0.004 * S, length=shaft_len,
                                       visualFramePosition=[0, 0, -shaft_len / 2], rgbaColor=_SHAFT_COLOUR)
         # Wrist pitch link: a short capsule from the pitch axis to the yaw axis (along its x axis).
         wrist_q = matrix_to_quat(np.array([[0, 0, 1], [0, 1, 0], [-1, 0, 0]], float))
         cols[4] = c.createCollisionShape(pb.GEOM_CAPSULE, radius=0.0025 * S, height=kin.WRIST_LENGTH * S * 0.6,
                                          collisionFramePosition=[kin.WRIST_LENGTH * S / 2, 0, 0],
                                          collisionFrameOrientation=wrist_q)
-        viss[4] = c.createVisualShape(pb.GEOM_CAPSULE, radius=0.0025 * S, length=kin.WRIST_LENGTH * S,
+        viss[4] = vis_shape(pb.GEOM_CAPSULE, radius=0.0025 * S, length=kin.WRIST_LENGTH * S,
                                       visualFramePosition=[kin.WRIST_LENGTH * S / 2, 0, 0],
                                       visualFrameOrientation=wrist_q, rgbaColor=_WRIST_COLOUR)
         # Jaws: revolute about the wrist-yaw axis (z of frame 6), blades along +y, opening along ±x.
@@ -107,7 +109,7 @@ class Psm:
             centre = np.array([sign * _JAW_HALF[0], _JAW_HALF[1], 0.0]) * S
             cols.append(c.createCollisionShape(pb.GEOM_BOX, halfExtents=(_JAW_HALF * S).tolist(),
                                                collisionFramePosition=centre.tolist()))
-            viss.append(c.createVisualShape(pb.GEOM_BOX, halfExtents=(_JAW_HALF * S).tolist(),
+            viss.append(vis_shape(pb.GEOM_BOX, halfExtents=(_JAW_HALF * S).tolist(),
                                             visualFramePosition=centre.tolist(), rgbaColor=_JAW_COLOUR))
             positions.append([0, 0, 0])
             orientations.append([0, 0, 0, 1])
@@ -126,8 +128,8 @@ class Psm:
         viss.append(-1)
 
         n = len(masses)
-        base_vis = c.createVisualShape(pb.GEOM_SPHERE, radius=0.004 * S, rgbaColor=(0.9, 0.6, 0.1, 1.0))
-        body = c.createMultiBody(
+        base_vis = vis_shape(pb.GEOM_SPHERE, radius=0.004 * S, rgbaColor=(0.9, 0.6, 0.1, 1.0))
+        self._spec = dict(
             baseMass=0.0, baseCollisionShapeIndex=-1, baseVisualShapeIndex=base_vis,
             basePosition=(self.world_T_rcm[:3, 3] * S).tolist(),
             baseOrientation=matrix_to_quat(self.world_T_rcm[:3, :3]),
@@ -136,6 +138,12 @@ class Psm:
             linkInertialFramePositions=[[0, 0, 0]] * n, linkInertialFrameOrientations=[[0, 0, 0, 1]] * n,
             linkParentIndices=parents, linkJointTypes=joint_types, linkJointAxis=axes,
             useMaximalCoordinates=False)
+        return self._create_body()
+
+    def _create_body(self) -> int:
+        c = self.client
+        body = c.createMultiBody(**self._spec)
+        n = len(self._spec["linkMasses"])
         for j in range(n):
             c.changeDynamics(body, j, linearDamping=0.0, angularDamping=0.0, jointDamping=0.0)
         for j in ARM_JOINTS:
@@ -144,6 +152,11 @@ class Psm:
             c.changeDynamics(body, j, lateralFriction=physics.JAW_FRICTION, spinningFriction=0.0,
                              localInertiaDiagonal=[physics.JAW_INERTIA] * 3)
         return body
+
+    def respawn(self) -> None:
+        """Replace the body by a fresh one from the same shapes: no solver or motor state survives."""
+        self.client.removeBody(self.body)
+        self.body = self._create_body()
 
     # ------------------------------------------------------------------ state
     def reset_joints(self, q, jaw: float) -> None:

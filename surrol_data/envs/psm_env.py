@@ -64,16 +64,10 @@ class PsmEnv(gym.Env):
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
         self.render_mode = render_mode
         self.render_size = render_size
+        # Visual shapes cost most of a rebuild and matter only to a renderer: build them only when one is used.
+        self.visual = render_mode is not None
         self.client = physics.make_client(gui=render_mode == "human")
-        objects.make_table(self.client)
-        self.psm = Psm(self.client, PSM1_RCM)
-        self.object_id = -1
-        self.build_scene()
-        self.goal_marker = objects.make_goal_marker(self.client)
-        self.grasp = Grasp(self.client, self.psm, self.object_id)
-        # Every reset restores this snapshot (which includes contact caches), so equal seeds give equal
-        # episodes bit for bit without rebuilding the world.
-        self._initial_state = self.client.saveState()
+        self._build_world()
         self._tip = np.eye(4)
         self.goal = np.zeros(3)
         self._waypoints: list[dict] = []
@@ -86,12 +80,27 @@ class PsmEnv(gym.Env):
             {"observation": box(obs_dim), "achieved_goal": box(3), "desired_goal": box(3)})
         self.action_space = spaces.Box(-1.0, 1.0, shape=(5,), dtype=np.float32)
 
+    def _build_world(self) -> None:
+        objects.make_table(self.client, visual=self.visual)
+        self.psm = Psm(self.client, PSM1_RCM, visual=self.visual)
+        self.object_id = -1
+        self.build_scene()
+        self.goal_marker = objects.make_goal_marker(self.client, visual=self.visual)
+        self.grasp = Grasp(self.client, self.psm, self.object_id)
+
     # ------------------------------------------------------------------ to be declared by tasks
     def build_scene(self) -> None:
         raise NotImplementedError
 
+    def respawn_objects(self) -> None:
+        """Replace the task's dynamic bodies by fresh ones (see :meth:`reset`)."""
+
     def reset_task(self, rng: np.random.Generator) -> tuple[np.ndarray, float, float]:
-        """Place objects, set ``self.goal``; return the initial tip position, yaw and jaw angle."""
+        """Place objects (without simulating); return the initial tip position, yaw and jaw angle."""
+        raise NotImplementedError
+
+    def sample_goal(self, rng: np.random.Generator) -> np.ndarray:
+        """The desired goal, drawn after the scene has settled."""
         raise NotImplementedError
 
     def object_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -116,14 +125,23 @@ class PsmEnv(gym.Env):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
-        self.grasp.release()
-        self.client.restoreState(stateId=self._initial_state)
+        # Fresh dynamic bodies every episode: PyBullet keeps hidden per-body state (solver warm starts,
+        # sleeping timers) that neither resetting poses nor restoring a saved state clears, and equal seeds
+        # must give equal episodes bit for bit. Their shapes are reused, so this costs well under a millisecond.
+        self.psm.respawn()
+        self.respawn_objects()
+        self.grasp = Grasp(self.client, self.psm, self.object_id)
         tip, yaw, jaw = self.reset_task(self.np_random)
         sol = self.psm.ik(kin.pose_from(tip, tool_down(yaw)))
         if not sol.within_limits:
             raise RuntimeError(f"initial tip position {tip} is outside the PSM's reach; check the task's workspace")
         self.psm.reset_joints(sol.q, jaw)
         self.simulate(physics.SETTLE_STEPS)
+        if self.object_id >= 0:
+            # The settled object sleeps until something touches it (Bullet wakes it on contact): a resting
+            # object's contacts are most of a step's physics cost.
+            self.client.changeDynamics(self.object_id, -1, activationState=physics.pb.ACTIVATION_STATE_SLEEP)
+        self.goal = np.asarray(self.sample_goal(self.np_random), dtype=np.float64)
         self.client.resetBasePositionAndOrientation(self.goal_marker, (self.goal * SCALING).tolist(), [0, 0, 0, 1])
         self._waypoints = self.plan_oracle()
         self._wp_index = 0

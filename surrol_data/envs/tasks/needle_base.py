@@ -13,8 +13,15 @@ class NeedleTaskBase(PsmEnv):
     NEEDLE_YAW_RANGE = np.pi / 2     # needle heading ± U(90°)
 
     def build_scene(self) -> None:
-        objects.make_tray(self.client, with_pad=True)
-        self.object_id = objects.make_needle(self.client)
+        objects.make_tray(self.client, with_pad=True, visual=self.visual)
+        self._needle_spec = objects.needle_spec(self.client, visual=self.visual)
+        self.respawn_objects()
+
+    def respawn_objects(self) -> None:
+        if self.object_id >= 0:
+            self.client.removeBody(self.object_id)
+        self.object_id = self.client.createMultiBody(**self._needle_spec)
+        objects.configure_needle(self.client, self.object_id)
 
     def place_needle(self, rng: np.random.Generator) -> None:
         xy = WORKSPACE[:2].mean(axis=1) + rng.uniform(-self.NEEDLE_JITTER_M, self.NEEDLE_JITTER_M, size=2)

@@ -20,11 +20,12 @@ class NeedlePick(NeedleTaskBase):
 
     def reset_task(self, rng):
         self.place_needle(rng)
-        self.simulate(physics.SETTLE_STEPS)
-        xy = WORKSPACE[:2].mean(axis=1) + rng.normal(0.0, self.GOAL_XY_SIGMA_M, size=2)
-        self.goal = np.array([xy[0], xy[1], self.GOAL_Z_M])
         start = np.array([WORKSPACE[0, 0], WORKSPACE[1, 1], WORKSPACE[2].mean()])
         return start, 0.0, physics.JAW_OPEN_RAD
+
+    def sample_goal(self, rng):
+        xy = WORKSPACE[:2].mean(axis=1) + rng.normal(0.0, self.GOAL_XY_SIGMA_M, size=2)
+        return np.array([xy[0], xy[1], self.GOAL_Z_M])
 
     def plan_oracle(self):
         wp = self.needle_waypoint(1)

@@ -19,13 +19,11 @@ class NeedleReach(NeedleTaskBase):
 
     def reset_task(self, rng):
         self.place_needle(rng)
-        self.simulate(physics.SETTLE_STEPS)
-        self.goal = self.needle_waypoint(1) + np.array([0.0, 0.0, 0.005])
         start = np.array([WORKSPACE[0, 0], WORKSPACE[1, 1], WORKSPACE[2, 1]])
         return start, 0.0, physics.JAW_CLOSED_RAD
 
-    def _settle(self):
-        self.simulate(physics.SETTLE_STEPS)
+    def sample_goal(self, rng):
+        return self.needle_waypoint(1) + np.array([0.0, 0.0, 0.005])
 
     def achieved_goal(self) -> np.ndarray:
         return self.tip_pose()[:3, 3]
