@@ -601,24 +601,16 @@ def repair(root: str | Path) -> dict:
         return {"episodes_kept": kept, "episodes_dropped": 0, "frames": frames, "moved": [], "backup_dir": None}
 
     # Drop rows of lost episodes from files that survived (e.g. a data file that rolled over before the kill).
-    for path in parquet_files(root, EPISODES_DIR):
-        table = pq.read_table(path)
-        keep = pc.less(table.column("episode_index"), kept)
-        if pc.all(keep).as_py():
-            continue
-        filtered = table.filter(keep)
-        move_aside(path)
-        if filtered.num_rows:
-            pq.write_table(filtered, path)
-    for path in parquet_files(root, DATA_DIR):
-        table = pq.read_table(path)
-        keep = pc.less(table.column("episode_index"), kept)
-        if pc.all(keep).as_py():
-            continue
-        filtered = table.filter(keep)
-        move_aside(path)
-        if filtered.num_rows:
-            _write_one_row_group_per_episode(filtered, path)
+    for subdir, write in ((EPISODES_DIR, pq.write_table), (DATA_DIR, _write_one_row_group_per_episode)):
+        for path in parquet_files(root, subdir):
+            table = pq.read_table(path)
+            keep = pc.less(table.column("episode_index"), kept)
+            if pc.all(keep).as_py():
+                continue
+            filtered = table.filter(keep)
+            move_aside(path)
+            if filtered.num_rows:
+                write(filtered, path)
     referenced = {str(Path(info["video_path"].format(video_key=v, chunk_index=r[f"videos/{v}/chunk_index"],
                                                      file_index=r[f"videos/{v}/file_index"])))
                   for r in kept_rows for v in video_keys}
