@@ -88,7 +88,7 @@ def evaluate_cmd(task: str = typer.Option(..., help="Task name, e.g. NeedlePick.
                  seed: int = typer.Option(0, help="Seed of the first episode; episode i uses seed + i."),
                  max_steps: Optional[int] = typer.Option(None, min=1)):
     """Run a policy for N seeded episodes and print its proficiency metrics."""
-    from surrol_data.demo import _print_summary
+    from surrol_data.demo import print_summary
     from surrol_data.envs import env_id
     from surrol_data.evaluation.rollout import evaluate
 
@@ -96,7 +96,7 @@ def evaluate_cmd(task: str = typer.Option(..., help="Task name, e.g. NeedlePick.
         result = evaluate(env_id(task), policy, episodes, seed=seed, max_steps=max_steps)
     except (ValueError, FileNotFoundError) as e:
         _fail(str(e))
-    _print_summary(console, {f"{policy} on {task}": result.summary})
+    print_summary(console, {f"{policy} on {task}": result.summary})
 
 
 @app.command("train-bc")

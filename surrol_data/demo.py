@@ -81,7 +81,7 @@ def run_demo(out: str | Path | None = None, episodes: int = DEMO_EPISODES, eval_
         intro=(f"{episodes} scripted demos of {DEMO_TASK} recorded as a LeRobot v3 dataset, a BC policy "
                f"trained on them, and both policies evaluated on {eval_episodes} unseen seeds "
                f"({EVAL_SEED}…{EVAL_SEED + eval_episodes - 1})."))
-    _print_summary(console, {"script demos (dataset)": _demo_summary(demos), **summaries})
+    print_summary(console, {"script demos (dataset)": _demo_summary(demos), **summaries})
     console.print(f"\n[bold green]done in {time.perf_counter() - t0:.0f} s[/]")
     for name, path in (("dataset", dataset), ("BC policy", policy_path), ("report", report),
                        ("Rerun recording", recording)):
@@ -96,7 +96,7 @@ def _demo_summary(demos) -> dict:
     return summarize([trajectory_proficiency(t) for t in demos])
 
 
-def _print_summary(console: Console, summaries: dict) -> None:
+def print_summary(console: Console, summaries: dict) -> None:
     table = Table(title="proficiency (success at any step; steps and path over successful episodes)")
     for col in ("source", "episodes", "success", "final success", "steps to complete", "path length cm"):
         table.add_column(col, justify="right" if col != "source" else "left")

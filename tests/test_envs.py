@@ -178,18 +178,10 @@ def test_grasp_attaches_only_when_both_jaws_touch():
     e.close()
 
 
+@pytest.mark.parametrize("episodes", [30, pytest.param(200, marks=pytest.mark.slow)])
 @pytest.mark.parametrize("task", TASKS)
-def test_oracle_success_rate(task):
+def test_oracle_success_rate(task, episodes):
     e = gym.make(f"SurRoL/{task}-v0")
-    results = [run_oracle(e, seed)[1][-1] for seed in range(30)]
-    assert np.mean(results) >= 0.99
-    e.close()
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("task", TASKS)
-def test_oracle_success_rate_200_episodes(task):
-    e = gym.make(f"SurRoL/{task}-v0")
-    results = [run_oracle(e, seed)[1][-1] for seed in range(200)]
+    results = [run_oracle(e, seed)[1][-1] for seed in range(episodes)]
     assert np.mean(results) >= 0.99
     e.close()

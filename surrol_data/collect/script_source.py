@@ -7,7 +7,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import gymnasium as gym
-import numpy as np
 from tqdm import tqdm
 
 from surrol_data.collect.recorder import DatasetRecorder

@@ -105,12 +105,6 @@ def _needle_geometry(client) -> NeedleGeometry:
     return NeedleGeometry(positions, orientations, length)
 
 
-def make_needle(client, visual: bool = True) -> int:
-    body = client.createMultiBody(**needle_spec(client, visual))
-    configure_needle(client, body)
-    return body
-
-
 def needle_spec(client, visual: bool = True) -> dict:
     """Shapes and mass of the needle as ``createMultiBody`` arguments (reusable to respawn the body)."""
     g = _needle_geometry(client)

@@ -33,9 +33,8 @@ _JAW_COLOUR = (0.2, 0.2, 0.22, 1.0)
 _JAW_HALF = np.array([0.0007, 0.0051, 0.0009])
 
 
-def _matrix_to_quat(client, r: np.ndarray):
-    # PyBullet has no matrix→quaternion helper; go through a robust trace-based conversion.
-    m = r
+def matrix_to_quat(m: np.ndarray):
+    # PyBullet has no matrix→quaternion helper; a trace-based conversion, robust near 180° rotations.
     tr = m[0, 0] + m[1, 1] + m[2, 2]
     if tr > 0:
         s = np.sqrt(tr + 1.0) * 2
@@ -50,10 +49,6 @@ def _matrix_to_quat(client, r: np.ndarray):
         s = np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2
         w, x, y, z = (m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s
     return [x, y, z, w]
-
-
-def matrix_to_quat(r: np.ndarray):
-    return _matrix_to_quat(None, r)
 
 
 def quat_to_matrix(client, q) -> np.ndarray:
@@ -215,10 +210,6 @@ class Psm:
         self._q_target = q
         self._apply_arm_targets()
         return True
-
-    def command_joints(self, q) -> None:
-        self._q_target = np.clip(np.asarray(q, float), kin.PSM_LOWER, kin.PSM_UPPER)
-        self._apply_arm_targets()
 
     def command_jaw(self, angle: float) -> None:
         self._jaw_target = float(np.clip(angle, *kin.JAW_LIMITS))

@@ -125,12 +125,13 @@ class PsmEnv(gym.Env):
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
+        self.grasp.release()
         # Fresh dynamic bodies every episode: PyBullet keeps hidden per-body state (solver warm starts,
         # sleeping timers) that neither resetting poses nor restoring a saved state clears, and equal seeds
-        # must give equal episodes bit for bit. Their shapes are reused, so this costs well under a millisecond.
+        # must give equal episodes bit for bit. Their shapes are reused; the whole reset takes about 2 ms.
         self.psm.respawn()
         self.respawn_objects()
-        self.grasp = Grasp(self.client, self.psm, self.object_id)
+        self.grasp.object_id = self.object_id
         tip, yaw, jaw = self.reset_task(self.np_random)
         sol = self.psm.ik(kin.pose_from(tip, tool_down(yaw)))
         if not sol.within_limits:

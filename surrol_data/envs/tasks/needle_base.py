@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from surrol_data.envs import objects
-from surrol_data.envs.psm_env import WORKSPACE, PsmEnv, tip_orientation_features
+from surrol_data.envs.psm_env import WORKSPACE, PsmEnv
 
 
 class NeedleTaskBase(PsmEnv):
