@@ -7,9 +7,17 @@ from gymnasium.envs.registration import register, registry
 
 TASKS = {
     "NeedleReach": "surrol_data.envs.tasks.needle_reach:NeedleReach",
+    "GauzeRetrieve": "surrol_data.envs.tasks.gauze_retrieve:GauzeRetrieve",
     "NeedlePick": "surrol_data.envs.tasks.needle_pick:NeedlePick",
+    "PegTransfer": "surrol_data.envs.tasks.peg_transfer:PegTransfer",
+    "NeedleRegrasp": "surrol_data.envs.tasks.needle_regrasp:NeedleRegrasp",
+    "BiPegTransfer": "surrol_data.envs.tasks.bi_peg_transfer:BiPegTransfer",
+    "ECMReach": "surrol_data.envs.tasks.ecm_reach:ECMReach",
+    "MisOrient": "surrol_data.envs.tasks.mis_orient:MisOrient",
+    "StaticTrack": "surrol_data.envs.tasks.static_track:StaticTrack",
+    "ActiveTrack": "surrol_data.envs.tasks.active_track:ActiveTrack",
 }
-DEFAULT_MAX_EPISODE_STEPS = {name: 50 for name in TASKS}
+DEFAULT_MAX_EPISODE_STEPS = {name: 500 if name == "ActiveTrack" else 50 for name in TASKS}
 
 
 def env_id(task: str) -> str:
