@@ -221,6 +221,13 @@ class PsmEnv(gym.Env):
                 "grasped": self.grasp.attached}
 
     # ------------------------------------------------------------------ oracle
+    @property
+    def oracle_waypoints(self) -> list[dict]:
+        """The oracle's plan for this episode (made at reset): dicts with ``target`` (a tip position in metres,
+        or a callable of the observation for closed-loop waypoints), ``yaw``, ``jaw`` and tolerances. Other
+        agents that know the task's steps (the simulated operator) follow the same plan their own way."""
+        return list(self._waypoints)
+
     def oracle_action(self, obs: dict) -> np.ndarray:
         """Scripted linear-waypoint policy: move the tip towards the next waypoint at most ``ORACLE_GAIN`` cm
         per axis per step, turn the yaw towards the waypoint's, set the jaw; a waypoint is done when the tip
