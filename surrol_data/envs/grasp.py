@@ -16,10 +16,18 @@ _KEEP = 3 * _TOUCH  # hysteresis: once held, the object may sit a little away fr
 
 
 class Grasp:
-    def __init__(self, client, psm, object_id: int):
+    """While the constraint holds the object, the jaws do not collide with it (as in the reference's approximate
+    grasp); releasing restores the contacts. Why: the weld alone holds the object. Closing jaws sink about a
+    millimetre into a held object and their contacts then push against the constraint — a block held by two
+    hands gets twisted out of the second hand once the first lets go — and those contact rows make carrying
+    cost 2–3× the physics of a free move. The touch test ignores collision filters. PyBullet keys pair
+    filters by body ids, which removed bodies hand on: envs release every grasp before they respawn bodies."""
+
+    def __init__(self, client, psm, object_id: int, collide_while_held: bool = False):
         self.client = client
         self.psm = psm
         self.object_id = object_id
+        self.collide_while_held = collide_while_held
         self.constraint: int | None = None
 
     @property
@@ -41,6 +49,11 @@ class Grasp:
         elif not self.jaws_touching(_KEEP):
             self.release()
 
+    def attach(self) -> None:
+        """Hold the object at its current pose relative to the wrist (a task that starts with it in hand)."""
+        if self.constraint is None:
+            self._attach()
+
     def _attach(self) -> None:
         c = self.client
         eef = c.getLinkState(self.psm.body, EEF_LINK, computeForwardKinematics=True)
@@ -52,8 +65,16 @@ class Grasp:
                                              [0, 0, 0], rel_pos, [0, 0, 0],
                                              parentFrameOrientation=rel_quat)
         c.changeConstraint(self.constraint, maxForce=physics.GRASP_MAX_FORCE)
+        if not self.collide_while_held:
+            self._set_jaw_collisions(False)
+
+    def _set_jaw_collisions(self, enabled: bool) -> None:
+        for j in JAW_JOINTS:
+            self.client.setCollisionFilterPair(self.psm.body, self.object_id, j, -1, int(enabled))
 
     def release(self) -> None:
         if self.constraint is not None:
             self.client.removeConstraint(self.constraint)
             self.constraint = None
+            if not self.collide_while_held:
+                self._set_jaw_collisions(True)

@@ -12,6 +12,7 @@ import numpy as np
 from surrol_data.envs.physics import pb  # physics imports pybullet quietly
 
 from surrol_data.envs import physics
+from surrol_data.envs.psm import matrix_to_quat
 from surrol_data.envs.units import SCALING
 
 GREY = (0.75, 0.75, 0.75, 1.0)
@@ -28,6 +29,15 @@ TABLE_TOP_Z = 0.675
 # Tray with pad (NeedleReach/NeedlePick): base 120 × 196 × 0.362 mm, walls 22 mm tall, pad 101 × 170 × 5.2 mm.
 TRAY_ORIGIN = np.array([0.55, 0.0, 0.6751])
 PAD_TOP_Z = TRAY_ORIGIN[2] + 0.0036 + 0.0026
+# Tray without pad (GauzeRetrieve) sits 3 mm higher; its floor is the top of the 0.362 mm base.
+BARE_TRAY_ORIGIN = np.array([0.55, 0.0, 0.6781])
+BARE_TRAY_FLOOR_Z = BARE_TRAY_ORIGIN[2] + 0.000181
+
+# Gauze: collision box 4 × 2 × 3 mm (x × y × z), 50 g; drawn as the reference's flat 15.2 × 25.5 × 2.5 mm pad.
+GAUZE_HALF_EXTENTS = np.array([0.002, 0.001, 0.0015])
+GAUZE_VISUAL_HALF_EXTENTS = np.array([0.0076, 0.01275, 0.00125])
+GAUZE_MASS = 0.05
+GAUZE_COLOUR = (0.95, 0.95, 0.92, 1.0)
 
 # Needle: half circle of radius 20 mm opening towards +x of its frame, wire radius 0.62 mm, 10 g.
 NEEDLE_RADIUS = 0.020
@@ -138,6 +148,13 @@ def set_needle_pose(client, body: int, position_m, yaw: float) -> None:
     client.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0])
 
 
+def set_needle_frame(client, body: int, position_m, rotation: np.ndarray) -> None:
+    """Place the needle frame (arc centre) at ``position_m`` with any orientation (3×3 rotation), at rest."""
+    com = (np.asarray(position_m) + rotation @ NEEDLE_COM) * SCALING
+    client.resetBasePositionAndOrientation(body, com.tolist(), matrix_to_quat(rotation))
+    client.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0])
+
+
 def needle_pose(client, body: int) -> tuple[np.ndarray, np.ndarray]:
     """(needle-frame origin in real metres, rotation matrix)."""
     com, quat = client.getBasePositionAndOrientation(body)
@@ -148,6 +165,25 @@ def needle_pose(client, body: int) -> tuple[np.ndarray, np.ndarray]:
 def needle_rest_height() -> float:
     """Needle-frame z (real metres) when the needle lies flat on the pad."""
     return PAD_TOP_Z + NEEDLE_WIRE_RADIUS
+
+
+def gauze_spec(client, visual: bool = True) -> dict:
+    """Shapes and mass of the gauze as ``createMultiBody`` arguments (reusable to respawn the body)."""
+    col = client.createCollisionShape(pb.GEOM_BOX, halfExtents=(GAUZE_HALF_EXTENTS * SCALING).tolist())
+    vis = client.createVisualShape(pb.GEOM_BOX, halfExtents=(GAUZE_VISUAL_HALF_EXTENTS * SCALING).tolist(),
+                                   rgbaColor=GAUZE_COLOUR) if visual else -1
+    return dict(baseMass=GAUZE_MASS, baseCollisionShapeIndex=col, baseVisualShapeIndex=vis, basePosition=[0, 0, 0])
+
+
+def configure_gauze(client, body: int) -> None:
+    # Resting gauze may sleep until the jaws touch it: its box-on-tray contact is then free.
+    client.changeDynamics(body, -1, lateralFriction=physics.OBJECT_FRICTION, rollingFriction=0.0,
+                          spinningFriction=0.001, activationState=pb.ACTIVATION_STATE_ENABLE_SLEEPING)
+
+
+def gauze_rest_height() -> float:
+    """Gauze centre z (real metres) when it lies on the bare tray's floor."""
+    return BARE_TRAY_FLOOR_Z + GAUZE_HALF_EXTENTS[2]
 
 
 def make_goal_marker(client, radius_m: float = 0.003, colour=(0.1, 0.9, 0.1, 0.8), visual: bool = True) -> int:

@@ -43,6 +43,15 @@ JAW_MAX_VELOCITY = 4.0            # rad/s
 JAW_OPEN_RAD = np.deg2rad(40.0)   # the env's "open" jaw command
 JAW_CLOSED_RAD = 0.0
 
+# ECM (endoscope) joint control. The reference runs its ECM tasks at a 0.1 s control period of 24 × 1/240 s
+# steps of PyBullet's position motor with its default gains (Kp 0.1, Kd 1: each step closes 10 % of the error,
+# at most max-velocity × dt). The ECM touches nothing, so ecm.py integrates exactly that recurrence in closed
+# form instead of simulating it step by step; the velocity limits bound large commands (real units).
+ECM_CONTROL_PERIOD_S = 0.1
+ECM_SUBSTEPS = 24
+ECM_POSITION_GAIN = 0.1
+ECM_MAX_VELOCITY = (1.0, 1.0, 0.2, 2.0)   # yaw, pitch (rad/s), insertion (m/s), roll (rad/s)
+
 # Contact and grasp.
 JAW_FRICTION = 1.0
 OBJECT_FRICTION = 1.0

@@ -16,6 +16,7 @@ from gymnasium import spaces
 
 from surrol_data.envs import kinematics as kin
 from surrol_data.envs import objects, physics
+from surrol_data.envs.ecm import SceneEndoscope
 from surrol_data.envs.grasp import Grasp
 from surrol_data.envs.psm import Psm
 from surrol_data.envs.units import ACTION_POSITION_M, ACTION_YAW_RAD, SCALING, SUCCESS_TOLERANCE_M
@@ -58,27 +59,35 @@ class PsmEnv(gym.Env):
     BLOCK_JAW = False         # jaw forced closed, no grasping (NeedleReach)
     FIXED_YAW = False         # yaw action ignored
     ORACLE_GAIN = 0.4
+    ACTION_DIM = 5            # per arm 5; the bimanual base sets 10
+    OBSERVATION_DIM = 0       # 0: 19 with object terms, else 7; the bimanual base sets 35
 
-    def __init__(self, render_mode: str | None = None, render_size: tuple[int, int] = (480, 360)):
+    def __init__(self, render_mode: str | None = None, render_size: tuple[int, int] = (480, 360),
+                 camera: bool = False, camera_size: tuple[int, int] = (128, 128)):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
         self.render_mode = render_mode
         self.render_size = render_size
         # Visual shapes cost most of a rebuild and matter only to a renderer: build them only when one is used.
-        self.visual = render_mode is not None
+        self.visual = render_mode is not None or bool(camera)
         self.client = physics.make_client(gui=render_mode == "human")
         self._build_world()
+        # camera=True: a still, non-colliding ECM over the scene whose endoscope image joins the observation.
+        self.endoscope = SceneEndoscope(self.client, camera_size, scene_scale=SCALING) if camera else None
         self._tip = np.eye(4)
         self.goal = np.zeros(3)
         self._waypoints: list[dict] = []
         self._wp_index = 0
         self._hold = 0
 
-        obs_dim = 19 if self.OBJECT_OBS else 7
+        obs_dim = self.OBSERVATION_DIM or (19 if self.OBJECT_OBS else 7)
         box = lambda n: spaces.Box(-np.inf, np.inf, shape=(n,), dtype=np.float32)  # noqa: E731
         self.observation_space = spaces.Dict(
             {"observation": box(obs_dim), "achieved_goal": box(3), "desired_goal": box(3)})
-        self.action_space = spaces.Box(-1.0, 1.0, shape=(5,), dtype=np.float32)
+        if self.endoscope is not None:
+            w, h = self.endoscope.size
+            self.observation_space["image"] = spaces.Box(0, 255, shape=(h, w, 3), dtype=np.uint8)
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(self.ACTION_DIM,), dtype=np.float32)
 
     def _build_world(self) -> None:
         objects.make_table(self.client, visual=self.visual)
@@ -203,16 +212,22 @@ class PsmEnv(gym.Env):
         pose = self._tip
         return np.concatenate([pose[:3, 3], tip_orientation_features(pose[:3, :3]), [self.psm.jaw_angle()]])
 
-    def _get_obs(self) -> dict:
+    def observation_vector(self) -> np.ndarray:
+        """The flat state: the arm's terms, then (object tasks) the object's. The bimanual base overrides it."""
         robot = self.robot_state()
-        if self.OBJECT_OBS:
-            pos, wp, euler = self.object_state()
-            state = np.concatenate([robot, pos, pos - robot[:3], wp, euler])
-        else:
-            state = robot
-        return {"observation": state.astype(np.float32),
-                "achieved_goal": self.achieved_goal().astype(np.float32),
-                "desired_goal": self.goal.astype(np.float32)}
+        if not self.OBJECT_OBS:
+            return robot
+        pos, wp, euler = self.object_state()
+        return np.concatenate([robot, pos, pos - robot[:3], wp, euler])
+
+    def _get_obs(self) -> dict:
+        state = self.observation_vector()
+        obs = {"observation": state.astype(np.float32),
+               "achieved_goal": self.achieved_goal().astype(np.float32),
+               "desired_goal": self.goal.astype(np.float32)}
+        if self.endoscope is not None:
+            obs["image"] = self.endoscope.image()
+        return obs
 
     def _info(self, obs: dict) -> dict:
         return {"is_success": float(self.is_success(obs["achieved_goal"], obs["desired_goal"])),

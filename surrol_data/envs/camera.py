@@ -1,0 +1,123 @@
+"""The endoscope camera: where it looks from, where a world point lands in its image, and what it renders.
+
+The camera sits at the ECM's EEF and looks along the endoscope axis (EEF z), with EEF y as the image's up
+direction — as in the reference (eye at the EEF link, target 2 cm ahead, 60° field of view, near 1 cm,
+far 10 m, real units). Image coordinates used by the tracking tasks are *normalised*: (−1, −1) is the
+top-left corner, (1, 1) the bottom-right, so they do not depend on the rendered size.
+
+Rendering uses PyBullet's CPU TinyRenderer with the light coming from the endoscope itself (an endoscope
+carries its own light), so what faces the camera is lit whatever the arm's pose.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from surrol_data.envs.physics import pb  # physics imports pybullet quietly
+
+from surrol_data.envs.ecm_kinematics import CAMERA_TARGET_OFFSET_M
+
+FOV_DEG = 60.0
+NEAR_M = 0.01
+FAR_M = 10.0
+TAN_HALF_FOV = math.tan(math.radians(FOV_DEG) / 2)
+# The reference's tracking camera (256×256): pixel errors of the tracking tasks are measured at this size.
+TRACKING_RESOLUTION = 256
+
+
+class CameraAxes(NamedTuple):
+    """Camera pose in world coordinates (real metres): eye, image right, image down, viewing direction."""
+    eye: tuple[float, float, float]
+    right: tuple[float, float, float]
+    down: tuple[float, float, float]
+    forward: tuple[float, float, float]
+
+
+class CameraImage(NamedTuple):
+    rgb: np.ndarray                   # (H, W, 3) uint8
+    depth: np.ndarray | None          # (H, W) float32, metres (real) along the view axis
+    segmentation: np.ndarray | None   # (H, W) int32, PyBullet body unique id per pixel (−1 = background)
+
+
+def camera_axes(world_T_eef) -> CameraAxes:
+    """Camera axes from the EEF pose (4×4, world, real metres; an array or nested rows)."""
+    m = world_T_eef
+    eye = (float(m[0][3]), float(m[1][3]), float(m[2][3]))
+    forward = (float(m[0][2]), float(m[1][2]), float(m[2][2]))
+    # Image up is EEF y, so image down is −y; right completes the right-handed (right, down, forward) frame.
+    down = (-float(m[0][1]), -float(m[1][1]), -float(m[2][1]))
+    right = (-float(m[0][0]), -float(m[1][0]), -float(m[2][0]))
+    return CameraAxes(eye, right, down, forward)
+
+
+def project(axes: CameraAxes, point, aspect: float = 1.0) -> tuple[float, float, float]:
+    """(x, y, depth) of a world point: x, y normalised image coordinates (±1 at the image edges), depth in
+    metres along the view axis. Points behind the camera get a non-positive depth (x, y are then meaningless)."""
+    ex, ey, ez = axes.eye
+    dx, dy, dz = float(point[0]) - ex, float(point[1]) - ey, float(point[2]) - ez
+    r, d, f = axes.right, axes.down, axes.forward
+    depth = dx * f[0] + dy * f[1] + dz * f[2]
+    if depth <= 1e-9:
+        return 0.0, 0.0, depth
+    x = (dx * r[0] + dy * r[1] + dz * r[2]) / (depth * TAN_HALF_FOV * aspect)
+    y = (dx * d[0] + dy * d[1] + dz * d[2]) / (depth * TAN_HALF_FOV)
+    return x, y, depth
+
+
+def pixel_of(normalised_xy, width: int, height: int) -> tuple[float, float]:
+    """Normalised image coordinates → pixel coordinates (column, row) of a ``width``×``height`` image."""
+    x, y = normalised_xy
+    return (x + 1.0) * width / 2.0, (y + 1.0) * height / 2.0
+
+
+class EndoscopeCamera:
+    """Renders the endoscope's view of a PyBullet scene built ``scene_scale`` times larger than real."""
+
+    def __init__(self, client, size: tuple[int, int] = (128, 128), scene_scale: float = 1.0):
+        width, height = _checked_size(size)
+        self.client = client
+        self.width, self.height = width, height
+        self.scene_scale = float(scene_scale)
+        self._projection = client.computeProjectionMatrixFOV(
+            FOV_DEG, width / height, NEAR_M * scene_scale, FAR_M * scene_scale)
+
+    def render(self, world_T_eef, depth: bool = False, segmentation: bool = False) -> CameraImage:
+        """RGB (always), depth and segmentation (when asked) from the endoscope at ``world_T_eef`` (real)."""
+        axes = camera_axes(world_T_eef)
+        s = self.scene_scale
+        eye = [v * s for v in axes.eye]
+        target = [(e + CAMERA_TARGET_OFFSET_M * f) * s for e, f in zip(axes.eye, axes.forward)]
+        up = [-v for v in axes.down]
+        view = self.client.computeViewMatrix(eye, target, up)
+        # TinyRenderer's light direction points from the scene towards the light: back along the view axis.
+        light = [-v for v in axes.forward]
+        flags = 0 if segmentation else pb.ER_NO_SEGMENTATION_MASK
+        _, _, rgba, zbuffer, seg = self.client.getCameraImage(
+            self.width, self.height, view, self._projection, lightDirection=light, shadow=0,
+            lightAmbientCoeff=0.5, lightDiffuseCoeff=0.6, lightSpecularCoeff=0.05,
+            renderer=pb.ER_TINY_RENDERER, flags=flags)
+        rgb = np.asarray(rgba, dtype=np.uint8).reshape(self.height, self.width, 4)[:, :, :3].copy()
+        depth_m = None
+        if depth:
+            z = np.asarray(zbuffer, dtype=np.float64).reshape(self.height, self.width)
+            near, far = NEAR_M * s, FAR_M * s
+            depth_m = (far * near / (far - (far - near) * z) / s).astype(np.float32)
+        seg_ids = None
+        if segmentation:
+            # PyBullet packs (link + 1) << 24 into the id of multi-link bodies; keep the body id only.
+            raw = np.asarray(seg, dtype=np.int64).reshape(self.height, self.width)
+            seg_ids = np.where(raw < 0, -1, raw & ((1 << 24) - 1)).astype(np.int32)
+        return CameraImage(rgb, depth_m, seg_ids)
+
+
+def _checked_size(size) -> tuple[int, int]:
+    try:
+        width, height = (int(v) for v in size)
+    except (TypeError, ValueError):
+        raise ValueError(f"camera_size must be (width, height) in pixels, got {size!r}") from None
+    if not (8 <= width <= 2048 and 8 <= height <= 2048):
+        raise ValueError(f"camera_size must be between 8 and 2048 pixels per side, got {size!r}; "
+                         "(128, 128) is the default, (256, 256) the reference's")
+    return width, height
