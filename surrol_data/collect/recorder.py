@@ -18,11 +18,11 @@ Durability — what survives how the process ends:
 * SIGKILL, power loss, ``os._exit``: LeRobot keeps one ParquetWriter open per session and a parquet
   file only becomes readable once its footer is written at close. The recorder therefore
   **checkpoints**: every ``checkpoint_every`` episodes or ``checkpoint_interval_s`` seconds, whichever
-  comes first, it finalizes the dataset (closing every file) and resumes it (LeRobot resume starts new
-  data / metadata / video files). A hard kill then leaves only the files opened since the last checkpoint
+  comes first, it closes every open file and continues in new data / metadata / video files (as LeRobot's
+  resume would). A hard kill then leaves only the files opened since the last checkpoint
   unreadable; :func:`repair` moves them aside and rewrites info/stats/tasks so the dataset loads with every
   episode completed before that checkpoint (:attr:`DatasetRecorder.durable_episodes`). A checkpoint costs
-  ~0.3 s, so for slow human demonstrations use ``checkpoint_every=1``.
+  a few ms (one more small file per checkpoint), so for slow human demonstrations use ``checkpoint_every=1``.
 
 Episode metadata is flushed each episode (``metadata_buffer_size=1``) so an uncaught error that skips
 ``finalize`` never leaves info.json ahead of meta/episodes.
@@ -31,11 +31,17 @@ Provenance goes into the episodes parquet as ``provenance/<name>`` columns (see
 :mod:`surrol_data.datasets.schema`) by wrapping ``ds.meta.save_episode`` (re-installed after each resume),
 so LeRobot's ``episode_filter`` sees them.
 
-Speed: LeRobot's ``save_episode`` spends ~75 % of its time in ``embed_images`` — a per-row
-``datasets.map`` that only matters for ``image`` features (PNG bytes in the parquet). With
-``fast_save=True`` the module-level ``embed_images`` of lerobot's writer is replaced by a guard that calls
-the original whenever the episode has an ``image`` feature and skips it otherwise, so it stays correct for
-any dataset written in the process.
+Speed (``benchmarks/dataset_io.py``): a state-only episode is handed to lerobot whole, as the frame buffer
+``save_episode(episode_data=...)`` takes, instead of T ``add_frame`` calls that would re-validate every
+frame (:meth:`DatasetRecorder._frame_arrays` has already checked every dtype and shape); camera episodes
+still go through ``add_frame``, which stages the PNGs lerobot's video encoder reads. A checkpoint closes
+the open parquet files and points lerobot's writers at new ones (:func:`_close_files_and_continue`) instead
+of ``finalize`` + ``resume``, whose reload of the episodes table costs ~1 s and grows with the dataset; the
+files on disk are the same as after a resume. LeRobot's ``save_episode`` also spends most of its remaining
+time in ``embed_images`` — a per-row ``datasets.map`` that only matters for ``image`` features (PNG bytes
+in the parquet). With ``fast_save=True`` the module-level ``embed_images`` of lerobot's writer is replaced
+by a guard that calls the original whenever the episode has an ``image`` feature and skips it otherwise,
+so it stays correct for any dataset written in the process.
 """
 
 from __future__ import annotations
@@ -58,7 +64,8 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from surrol_data.datasets.info import read_sidecar, summarize
+from surrol_data.datasets.card import write_dataset_card
+from surrol_data.datasets.info import read_sidecar
 from surrol_data.datasets.reader import (
     DATA_DIR,
     EPISODES_DIR,
@@ -114,6 +121,32 @@ def _install_fast_save() -> None:
 
     embed_images_if_any._surrol_guard = True
     dataset_writer.embed_images = embed_images_if_any
+
+
+def _close_files_and_continue(ds) -> bool:
+    """Checkpoint without reloading: close the data and episodes parquet files (writing their footers) and
+    point lerobot's writer at new files for the next episode, exactly where ``resume()`` would.
+
+    ``resume()`` reloads the whole episodes table through ``datasets`` (~1 s, growing with the dataset); this
+    keeps the in-memory metadata instead. It relies on lerobot 0.6's writer state (the same fields resume
+    sets up); returns False, touching nothing, when that state is not there, and the caller resumes instead.
+    """
+    writer, meta = getattr(ds, "writer", None), getattr(ds, "meta", None)
+    needed = (hasattr(writer, "close_writer") and hasattr(writer, "_latest_episode")
+              and hasattr(meta, "_close_writer") and hasattr(meta, "latest_episode") and hasattr(meta, "episodes"))
+    if not needed or getattr(writer, "_batch_encoding_size", 1) != 1 or getattr(writer, "_streaming_encoder", None):
+        return False
+    if meta.latest_episode is None:
+        return True  # nothing written since the last checkpoint: every file is already closed
+    writer.flush_pending_videos()
+    writer.close_writer()
+    meta._close_writer()  # flushes the buffered episode rows, then writes the footer
+    # With no "latest episode", lerobot's writers take the last row of meta.episodes and start the next
+    # chunk/file after it, for data, episodes metadata and videos alike — what they do after resume().
+    meta.episodes = [{k: v[0] if isinstance(v, list) else v for k, v in meta.latest_episode.items()}]
+    meta.latest_episode = None
+    writer._latest_episode = None
+    return True
 
 
 def git_commit() -> str:
@@ -351,18 +384,25 @@ class DatasetRecorder:
             "task": self.task, "env_id": self.env_id, "command": self.command, "git_commit": self._git_commit})
         ds = self._ds
         episode_index = ds.meta.total_episodes
-        try:
-            for t in range(len(traj)):
-                frame = {key: values[t] for key, values in frames.items()}
-                frame["task"] = self.task_description
-                ds.add_frame(frame)
-        except BaseException:
-            ds.clear_episode_buffer()  # also deletes the staged camera PNGs of the episode
-            raise
+        episode_data = None
+        if self.dims["cameras"]:
+            # Camera frames go through add_frame, which stages the PNGs that lerobot's video encoder reads.
+            try:
+                for t in range(len(traj)):
+                    frame = {key: values[t] for key, values in frames.items()}
+                    frame["task"] = self.task_description
+                    ds.add_frame(frame)
+            except BaseException:
+                ds.clear_episode_buffer()  # also deletes the staged camera PNGs of the episode
+                raise
+        else:
+            # State-only: hand lerobot the whole episode at once. _frame_arrays already checked every dtype
+            # and shape, so add_frame's per-frame validation would only repeat it T times.
+            episode_data = self._episode_buffer(frames, len(traj), episode_index)
         with self._hold_signals():
             self._pending_columns = {PROVENANCE_PREFIX + k: v for k, v in prov.items()}
             try:
-                ds.save_episode()
+                ds.save_episode(episode_data=episode_data)
             finally:
                 self._pending_columns = None
             self._session["episodes"] = self._session.get("episodes", 0) + 1
@@ -378,13 +418,25 @@ class DatasetRecorder:
         if self._ds is None:
             raise RuntimeError("DatasetRecorder is not open")
         with self._hold_signals():
-            self._ds.finalize()
-            self._ds = _lerobot_dataset_class().resume(self.repo_id, root=self.root, video_backend=VIDEO_BACKEND)
-            self._prepare_writer()
+            if not _close_files_and_continue(self._ds):
+                self._ds.finalize()
+                self._ds = _lerobot_dataset_class().resume(self.repo_id, root=self.root,
+                                                           video_backend=VIDEO_BACKEND)
+                self._prepare_writer()
             self._durable = self._ds.meta.total_episodes
             self._since_checkpoint = 0
             self._last_checkpoint_t = time.monotonic()
             self._write_sidecar(checkpoint=True)
+
+    def _episode_buffer(self, frames: dict[str, np.ndarray], T: int, episode_index: int) -> dict:
+        """The pre-built frame buffer ``save_episode(episode_data=...)`` takes: what add_frame would accumulate."""
+        frame_index = np.arange(T, dtype=np.int64)
+        buffer = {"size": T, "task": [self.task_description] * T, "episode_index": episode_index,
+                  "frame_index": frame_index, "timestamp": (frame_index / FPS).astype(np.float32),
+                  # placeholders: save_episode assigns the global index and the task index itself
+                  "index": frame_index, "task_index": np.zeros(T, dtype=np.int64)}
+        buffer.update(frames)
+        return buffer
 
     def _frame_arrays(self, traj: Trajectory) -> dict[str, np.ndarray]:
         """Per-feature (T, ...) arrays with the exact dtype/shape add_frame demands (checked here, clearly)."""
@@ -468,69 +520,6 @@ def _raise_for_signal(signum: int) -> None:
     if signum == signal.SIGINT:
         raise KeyboardInterrupt
     raise SystemExit(128 + signum)  # like the default SIGTERM exit status, but unwinds through `finally`
-
-
-# ---------------------------------------------------------------------- dataset card
-
-
-def write_dataset_card(root: str | Path) -> Path:
-    """Write ``README.md`` (Hugging Face dataset card: YAML header, then task, sources, skills, proficiency)."""
-    root = Path(root)
-    s = summarize(root)
-    side = s["sidecar"]
-    task = side.get("task", ", ".join(s["tasks"]))
-    tags = ["LeRobot", "surrol_data", "surgical-robotics", "dvrk", "pybullet"] + ([task] if task else [])
-    lines = ["---", "task_categories:", "- robotics", "tags:", *[f"- {t}" for t in tags],
-             "configs:", "- config_name: default", "  data_files: data/*/*.parquet", "---", "",
-             f"# {side.get('repo_id', root.name)}", "",
-             f"Simulated da Vinci Research Kit demonstrations recorded with surrol_data "
-             f"{side.get('package_version', '')} as a LeRobot {s['codebase_version']} dataset "
-             f"(surrol_data schema {side.get('schema_version', '?')}).", "",
-             "## Task", "",
-             f"- task: **{task or '–'}**, env id `{side.get('env_id', '–')}`, robot `{s['robot_type'] or '–'}`",
-             f"- instruction: \"{side.get('task_description', '')}\"",
-             f"- {s['episodes']} episodes, {s['frames']} frames at {s['fps']} fps ({s['duration_s']:.0f} s)", ""]
-
-    def nan(v, fmt="{:.1f}"):
-        return "–" if v != v else fmt.format(v)
-
-    if s["has_provenance"] and s["episodes"]:
-        from surrol_data.datasets.reader import DatasetReader
-
-        eps = DatasetReader(root).episodes
-        lines += ["## Sources", "", "| source | device | episodes |", "|---|---|---|"]
-        for (src, dev), n in Counter(zip(eps["source"], eps["device"], strict=True)).most_common():
-            lines.append(f"| {src} | {dev} | {n} |")
-        lines += ["", "## Operators and skills", "", "| skill | operator | simulated | episodes |", "|---|---|---|---|"]
-        for (skill, op, sim), n in Counter(zip(eps["skill"], eps["operator_id"], eps["operator_simulated"],
-                                               strict=True)).most_common():
-            lines.append(f"| {skill} | {op or '–'} | {'yes' if sim else 'no'} | {n} |")
-        o = s["overall"]
-        lines += ["", "## Proficiency", "",
-                  f"Success rate {nan(100 * o['success_rate'])} %, mean steps to success "
-                  f"{nan(o['mean_steps_to_success'])}, mean path length {nan(o['mean_path_length_cm'])} cm "
-                  "(steps and path over successful episodes), mean jaw closures "
-                  f"{nan(o['mean_jaw_closures'], '{:.2f}')}.", "",
-                  "| source | device | skill | operator | episodes | success % | steps to success | path (cm) | jaw closures |",
-                  "|---|---|---|---|---|---|---|---|---|"]
-        for g in s["groups"]:
-            lines.append(f"| {g['source']} | {g['device']} | {g['skill']} | {g['operator_id'] or '–'} | "
-                         f"{g['episodes']} | {nan(100 * g['success_rate'])} | {nan(g['mean_steps_to_success'])} | "
-                         f"{nan(g['mean_path_length_cm'])} | {nan(g['mean_jaw_closures'], '{:.2f}')} |")
-        lines.append("")
-    commands = list(dict.fromkeys(sess.get("command", "") for sess in side.get("sessions", []) if sess.get("command")))
-    if commands:
-        lines += ["## How it was recorded", "", "```", *commands, "```", ""]
-    lines += ["## Structure", "",
-              "Per frame: `observation.*` (s_t), `action`, `next.reward`, `next.done` (env terminated), "
-              "`next.success`, `next.observation.*` (s_{t+1}), and `complementary_info.*` (tool-tip position in m, "
-              "jaw angle in rad, clutch and jaw buttons). Per episode: `provenance/*` columns in `meta/episodes` "
-              "(filter with LeRobot's `episode_filter`). Read with `surrol_data.datasets.reader.DatasetReader`.", "",
-              "| feature | dtype | shape |", "|---|---|---|"]
-    lines += [f"| `{k}` | {v['dtype']} | {tuple(v['shape'])} |" for k, v in s["features"].items()]
-    path = root / "README.md"
-    path.write_text("\n".join(lines) + "\n")
-    return path
 
 
 # ---------------------------------------------------------------------- repair

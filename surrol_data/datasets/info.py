@@ -81,6 +81,49 @@ def summarize(root: str | Path) -> dict:
     return summary
 
 
+SKILL_GROUP_BY = ("source", "skill")
+
+
+def skill_breakdown(root: str | Path) -> list[dict]:
+    """Proficiency per (source, skill): how demos of experts, novices and scripts differ.
+
+    Per group: episodes, success_rate, and over the *successful* episodes the mean and std of steps to
+    success and path length (cm) and the mean log dimensionless jerk (LDLJ, higher = smoother; computed
+    from the recorded tip path up to success, so the episode data is read); over all episodes the mean
+    clutch uses and ``regrasp_rate``, the fraction of episodes with more than one jaw closure (a grasp
+    that was retried). Empty when the dataset has no provenance.
+    """
+    from surrol_data.evaluation.metrics import trajectory_proficiency
+
+    reader = DatasetReader(root)
+    eps = reader.episodes
+    if not {*SKILL_GROUP_BY, "success", "steps_to_success", "path_length_cm", "jaw_closures"} <= set(eps.columns):
+        return []
+    groups = []
+    for key, rows in eps.groupby(list(SKILL_GROUP_BY), sort=True):
+        ok = rows[rows["success"]]
+        ldlj = [trajectory_proficiency(t).log_dimensionless_jerk
+                for t in reader.trajectories([int(e) for e in ok["episode_index"]])] if len(ok) else []
+
+        def std(values):
+            values = [float(v) for v in values if np.isfinite(v)]
+            return float(np.std(values)) if len(values) > 1 else float("nan")
+
+        groups.append({
+            **dict(zip(SKILL_GROUP_BY, key, strict=True)),
+            "episodes": int(len(rows)),
+            "success_rate": float(rows["success"].mean()),
+            "mean_steps_to_success": _mean(ok["steps_to_success"]),
+            "std_steps_to_success": std(ok["steps_to_success"]),
+            "mean_path_length_cm": _mean(ok["path_length_cm"]),
+            "std_path_length_cm": std(ok["path_length_cm"]),
+            "mean_ldlj": _mean(ldlj),
+            "mean_clutch_uses": _mean(rows["clutch_uses"]) if "clutch_uses" in rows else float("nan"),
+            "regrasp_rate": float((rows["jaw_closures"] > 1).mean()),
+        })
+    return groups
+
+
 def _fmt(value: float, digits: int = 1) -> str:
     return "–" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
 
@@ -135,6 +178,21 @@ def render_info(root: str | Path):
                            _fmt(100 * g["success_rate"]), _fmt(g["mean_steps_to_success"]),
                            _fmt(g["mean_path_length_cm"]), _fmt(g["mean_jaw_closures"], 2))
         parts.append(groups)
+        by_skill = skill_breakdown(root)
+        if by_skill:
+            prof = Table(title="Proficiency by source and skill", box=box.SIMPLE_HEAD, pad_edge=False,
+                         collapse_padding=True,
+                         caption="steps (to success), path and LDLJ over successful episodes (mean ± std); "
+                                 "LDLJ = log dimensionless jerk, higher is smoother; regrasp % = episodes with "
+                                 "more than one jaw closure; clutch = mean clutch uses")
+            for col in ("source", "skill", "eps", "ok %", "steps", "path cm", "LDLJ", "regrasp %", "clutch"):
+                prof.add_column(col, justify="left" if col in ("source", "skill") else "right", no_wrap=True)
+            for g in by_skill:
+                prof.add_row(g["source"] or "–", g["skill"] or "–", str(g["episodes"]), _fmt(100 * g["success_rate"]),
+                             f"{_fmt(g['mean_steps_to_success'])} ± {_fmt(g['std_steps_to_success'])}",
+                             f"{_fmt(g['mean_path_length_cm'])} ± {_fmt(g['std_path_length_cm'])}",
+                             _fmt(g["mean_ldlj"], 2), _fmt(100 * g["regrasp_rate"], 0), _fmt(g["mean_clutch_uses"], 2))
+            parts.append(prof)
     return Group(*parts)
 
 

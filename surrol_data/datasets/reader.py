@@ -91,8 +91,8 @@ def load_info(root: str | Path) -> dict:
     return info
 
 
-def _check_readable(root: Path) -> None:
-    bad = unreadable_parquet_files(root)
+def _check_readable(root: Path, bad: list[Path] | None = None) -> None:
+    bad = unreadable_parquet_files(root) if bad is None else bad
     if bad:
         names = ", ".join(str(p.relative_to(root)) for p in bad)
         raise DatasetError(f"{root}: {names} cannot be read (no parquet footer: the recorder was killed before it "
@@ -134,11 +134,22 @@ class DatasetReader:
                                    "its first checkpoint — nothing can be recovered")
             self._meta = pa.table({"episode_index": pa.array([], pa.int64()), "length": pa.array([], pa.int64())})
         else:
-            _check_readable(self.root)
-            tables = []
+            # Each episodes file's footer is parsed once (it describes ~300 stats columns: that parse is most
+            # of the cost of opening), for the readability check and the read alike.
+            tables, bad = [], []
+            for path in parquet_files(self.root, DATA_DIR):
+                try:
+                    pq.read_metadata(path)
+                except (pa.ArrowInvalid, OSError):
+                    bad.append(path)
             for path in parquet_files(self.root, EPISODES_DIR):
-                names = [n for n in pq.read_schema(path).names if not n.startswith("stats/")]
-                tables.append(pq.read_table(path, columns=names))
+                try:
+                    pf = pq.ParquetFile(path)
+                except (pa.ArrowInvalid, OSError):
+                    bad.append(path)
+                    continue
+                tables.append(pf.read(columns=[n for n in pf.schema_arrow.names if not n.startswith("stats/")]))
+            _check_readable(self.root, bad)
             self._meta = pa.concat_tables(tables, promote_options="default").sort_by("episode_index")
         self.episodes: pd.DataFrame = self._episodes_frame()
         self._row_of = {int(ep): i for i, ep in enumerate(self.episodes["episode_index"])}
@@ -166,16 +177,24 @@ class DatasetReader:
     def __len__(self) -> int:
         return len(self.episodes)
 
-    def select(self, where: None | Callable[[dict], bool] | dict = None) -> list[int]:
+    def select(self, where: None | str | Callable[[dict], bool] | dict = None) -> list[int]:
         """Episode indices whose row matches ``where``.
 
         ``None``: all. A callable gets the row as a dict (columns of :attr:`episodes`). A dict maps a column
         to a value or to a set/list/tuple of accepted values, e.g.
-        ``{"skill": "expert", "source": {"script", "haptic"}, "success": True}``.
+        ``{"skill": "expert", "source": {"script", "haptic"}, "success": True}``. A string is a
+        :mod:`surrol_data.datasets.where` expression, e.g. ``'skill == "expert" and success'``.
         """
         eps = self.episodes
         if where is None:
             return [int(e) for e in eps["episode_index"]]
+        if isinstance(where, str):
+            from surrol_data.datasets.where import WhereError, compile_where
+
+            try:
+                where = compile_where(where, eps.columns)
+            except WhereError as e:
+                raise DatasetError(str(e)) from None
         if callable(where):
             return [int(row["episode_index"]) for row in eps.to_dict("records") if where(row)]
         if not isinstance(where, dict):

@@ -1,0 +1,410 @@
+"""Haptic collection sessions: a person (or a simulated operator) drives the robot through a device.
+
+One session = one env, one or two devices (one per PSM arm), one dataset. Per attempt:
+
+1. ``env.reset(seed=...)`` (attempt ``i`` of a live session uses ``seed + i``; a replay uses each trace's seed),
+   reset each device's :class:`~surrol_data.collect.mapping.ActionMapper`;
+2. per env step: ``device.observe(obs, info)``, ``frame = device.read()``, ``step = mapper(frame)``,
+   ``env.step(action)`` — paced to the control period for human devices, as fast as possible for the
+   simulated operator and replays. The first frame of an attempt is the reference (zero motion);
+3. the attempt ends ``STEPS_AFTER_SUCCESS`` steps after the first success (so the demo shows the goal held),
+   at the horizon, when a replay's trace ends, or when the operator redoes / discards it (keys ``r`` / ``f``
+   in the terminal or the GUI window; ``Esc`` ends the session);
+4. a success (or any attempt with ``keep_failures``) is recorded with provenance and its device trace
+   (:mod:`surrol_data.collect.devices.trace`).
+
+Durability: the recorder checkpoints after every episode (human episodes are precious and slow), so a
+SIGKILL loses at most the episode in progress; Ctrl-C, SIGTERM, an unplugged device or any exception
+finalize the dataset with every finished episode.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+from tqdm import tqdm
+
+from surrol_data.collect.devices import HUMAN_DEVICES, Device, DeviceError, open_device
+from surrol_data.collect.devices.trace import mapping_from_dict, trace_path, write_trace
+from surrol_data.collect.mapping import ActionMapper, MappedStep, MappingSettings
+from surrol_data.collect.recorder import DatasetRecorder
+from surrol_data.collect.script_source import features_for
+from surrol_data.datasets.trajectory import TrajectoryBuilder
+from surrol_data.envs import env_id as make_env_id
+from surrol_data.envs.units import CONTROL_PERIOD_S
+
+# SurRoL-v2 recorded human NeedlePick demos with a 150-step horizon, 3× the scripted 50: people need the margin.
+HUMAN_HORIZON_FACTOR = 3
+STEPS_AFTER_SUCCESS = 2
+SKILLS = ("expert", "novice", "unknown")
+
+
+@dataclass
+class HapticResult:
+    root: Path
+    kept: int = 0
+    attempts: int = 0            # finished attempts (success or failure); redone / discarded ones not counted
+    failures: int = 0
+    discarded: int = 0
+    redone: int = 0
+    seeds: list[int] = field(default_factory=list)
+    episode_indices: list[int] = field(default_factory=list)
+    ended_by: str = ""           # "done", "operator" (Esc), "attempts" (max attempts reached), "traces" (replay)
+
+    @property
+    def success_rate(self) -> float:
+        return (self.attempts - self.failures) / self.attempts if self.attempts else float("nan")
+
+
+def has_display() -> bool:
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | Sequence[Device] = "touch",
+                   operator_id: str = "", skill: str = "unknown", sides: Sequence[str | None] | None = None,
+                   mapping: MappingSettings | Sequence[MappingSettings] | None = None,
+                   trace: str | Path | None = None, seed: int = 0, max_steps: int | None = None,
+                   keep_failures: bool = False, append: bool = False, gui: bool | None = None,
+                   rerun_live: str | None = None, max_attempts: int | None = None, progress: bool = True,
+                   command: str | None = None, library: str | Path | None = None,
+                   realtime: bool | None = None) -> HapticResult:
+    """Record ``episodes`` kept teleoperated episodes of ``task`` into the dataset at ``out``.
+
+    ``device``: a name of :data:`surrol_data.collect.devices.DEVICE_NAMES` (one device per arm is built with
+    :func:`open_device`), or ready-made :class:`Device` objects (one per arm). ``sides``: per-arm device side
+    (Touch: left/right; default right→PSM1, left→PSM2 for two arms). ``mapping``: one setting for all
+    devices or one per device. ``trace``: what ``replay`` plays. ``gui``: PyBullet window (default: when a
+    display exists and the device is a human one). ``rerun_live``: ``"spawn"`` (start a viewer), a
+    ``rerun+http://`` URL, or an ``.rrd`` path to stream the session to. ``max_attempts``: stop after that
+    many finished attempts (default 3 × episodes). ``realtime``: pace steps to the control period (default:
+    for human devices only).
+    """
+    if episodes <= 0:
+        raise ValueError(f"--episodes must be positive, got {episodes}")
+    if skill not in SKILLS:
+        raise ValueError(f"--skill must be one of {', '.join(SKILLS)}, got {skill!r}")
+    names = [device] if isinstance(device, str) else [d.name for d in device]
+    if isinstance(device, str) and device == "operator" and skill == "unknown":
+        raise ValueError("the simulated operator needs --skill expert or --skill novice")
+    human = any(n in HUMAN_DEVICES for n in names)
+    if gui is None:
+        gui = human and has_display()
+    if gui and not has_display():
+        raise ValueError("--gui needs a display (DISPLAY / WAYLAND_DISPLAY is unset); run without --gui, "
+                         "optionally with --rerun-live")
+    import surrol_data.envs  # noqa: F401  (registers the ids)
+
+    eid = make_env_id(task)
+    registered = gym.spec(eid).max_episode_steps
+    replay_horizon = _replay_horizon(trace) if names == ["replay"] else None
+    horizon = max_steps or replay_horizon or HUMAN_HORIZON_FACTOR * registered
+    env = gym.make(eid, max_episode_steps=horizon, **({"render_mode": "human"} if gui else {}))
+    try:
+        return _Session(env, eid, episodes, out, device, names, operator_id, skill, sides, mapping, trace, seed,
+                        horizon, keep_failures, append, gui, rerun_live, max_attempts or 3 * episodes, progress,
+                        command, library, realtime).run()
+    finally:
+        env.close()
+
+
+def parse_mapping(overrides: Sequence[str], base: MappingSettings | None = None) -> MappingSettings:
+    """``["motion_scale=0.4", "axis_sign=1,-1,1"]`` → MappingSettings (the CLI's ``--mapping`` options)."""
+    values = (base or MappingSettings()).as_dict()
+    for item in overrides:
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        if not sep or key not in values:
+            raise ValueError(f"--mapping {item!r}: expected NAME=VALUE with NAME one of {', '.join(values)}")
+        try:
+            parts = [float(v) for v in text.split(",")]
+        except ValueError:
+            raise ValueError(f"--mapping {item!r}: {text!r} is not a number or a comma-separated list") from None
+        old = values[key]
+        if isinstance(old, tuple):
+            if len(parts) != len(old):
+                raise ValueError(f"--mapping {key} needs {len(old)} comma-separated values, got {text!r}")
+            values[key] = tuple(int(v) if isinstance(o, int) else v for v, o in zip(parts, old, strict=True))
+        elif len(parts) != 1:
+            raise ValueError(f"--mapping {key} takes one value, got {text!r}")
+        else:
+            values[key] = int(parts[0]) if isinstance(old, int) else parts[0]
+    if sorted(values["axis_permutation"]) != [0, 1, 2] or not 0 <= values["rotation_axis"] <= 2:
+        raise ValueError(f"--mapping: axis_permutation {values['axis_permutation']} must be a permutation of 0,1,2 "
+                         f"and rotation_axis ({values['rotation_axis']}) one of 0, 1, 2")
+    return mapping_from_dict(values)
+
+
+def _replay_horizon(trace) -> int | None:
+    from surrol_data.collect.devices.trace import read_trace, trace_files
+
+    if trace is None:
+        return None
+    return max(int(read_trace(f).meta.get("horizon", 0)) for f in trace_files(trace)) or None
+
+
+class _Session:
+    """The attempt loop of :func:`collect_haptic` (state that lives for one session)."""
+
+    def __init__(self, env, eid, episodes, out, device, names, operator_id, skill, sides, mapping, trace, seed,
+                 horizon, keep_failures, append, gui, rerun_live, max_attempts, progress, command, library,
+                 realtime):
+        self.env, self.eid, self.episodes, self.out = env, eid, episodes, Path(out)
+        self.task = eid.split("/")[1].rsplit("-v", 1)[0]
+        self.operator_id, self.skill, self.seed, self.horizon = operator_id, skill, seed, horizon
+        self.keep_failures, self.max_attempts, self.progress = keep_failures, max_attempts, progress
+        self.gui, self.command = gui, command
+        act_dim = env.action_space.shape[0]
+        self.ecm_only = act_dim % 5 != 0   # ECM tasks: a 1-, 3- or 4-D camera action, one device
+        n_devices = 1 if self.ecm_only else act_dim // 5
+
+        if sides is None:
+            sides = ("right", "left") if n_devices == 2 and names[0] == "touch" else (None,) * n_devices
+        sides = list(sides)
+        if len(sides) != n_devices:
+            raise ValueError(f"{self.task} needs {n_devices} device(s), {len(sides)} side(s) given ({sides})")
+        if mapping is None or isinstance(mapping, MappingSettings):
+            self.mappings = [mapping or MappingSettings()] * n_devices
+        else:
+            self.mappings = list(mapping)
+        if len(self.mappings) != n_devices:
+            raise ValueError(f"{self.task} needs {n_devices} mapping setting(s), {len(self.mappings)} given")
+        self.sides = sides
+
+        # Ready-made keyboard devices bring their key source; the session keys are read from the same one.
+        given = [] if isinstance(device, str) else list(device)
+        self.key_tracker = next((d.tracker for d in given if getattr(d, "tracker", None) is not None), None) \
+            or self._key_tracker(names)
+        if isinstance(device, str):
+            self.devices = [open_device(device, arm=i, side=sides[i], env=env.unwrapped, mapping=self.mappings[i],
+                                        skill=skill, operator_id=operator_id, seed=seed, trace=trace,
+                                        key_tracker=self.key_tracker, library=library)
+                            for i in range(n_devices)]
+        else:
+            self.devices = list(device)
+            if len(self.devices) != n_devices:
+                raise ValueError(f"{self.task} needs {n_devices} device(s), {len(self.devices)} given")
+        self.replay = all(d.name == "replay" for d in self.devices)
+        self.realtime = any(getattr(d, "realtime", False) for d in self.devices) if realtime is None else realtime
+        self.live = _LiveStream(rerun_live, self.task) if rerun_live else None
+        self.recorder = DatasetRecorder(self.out, task=self.task, env_id=eid, task_description=env.unwrapped.TASK,
+                                        features=features_for(env), append=append, command=command,
+                                        checkpoint_every=1)
+        self.result = HapticResult(root=self.out)
+
+    def _key_tracker(self, names):
+        """One key source for keyboard devices and the session keys (only for people at a terminal or window)."""
+        if not any(n in HUMAN_DEVICES for n in names):
+            return None
+        from surrol_data.collect.devices.keyboard import KeyTracker, PyBulletKeys, TerminalKeys
+
+        if self.gui:
+            return KeyTracker(PyBulletKeys(self.env.unwrapped.client))
+        if sys.stdin.isatty():
+            return KeyTracker(TerminalKeys())
+        return None
+
+    # ------------------------------------------------------------------ the loop
+
+    def run(self) -> HapticResult:
+        res = self.result
+        n_traces = self.devices[0].episodes if self.replay else None
+        target = min(self.episodes, n_traces) if n_traces is not None else self.episodes
+        bar = tqdm(total=target, desc=f"collect {self.task} (haptic, {self.devices[0].name})", unit="ep",
+                   disable=not self.progress)
+        connected: list[Device] = []
+        seed_offset = 0
+        try:
+            with self.recorder:
+                for dev in self.devices:
+                    dev.connect()
+                    connected.append(dev)
+                if self.key_tracker is not None:
+                    self.key_tracker.start()
+                    if self.realtime:
+                        tqdm.write("keys: r = redo this attempt, f = discard it, Esc = end the session "
+                                   "(Ctrl-C in a terminal)")
+                while res.kept < target and res.attempts < self.max_attempts:
+                    replayed = None
+                    if self.replay:   # trace i holds attempt i's seed, mapping and operator
+                        replayed = [d.start_episode(seed_offset) for d in self.devices]
+                        attempt_seed = replayed[0].seed
+                    else:
+                        attempt_seed = self.seed + seed_offset
+                    outcome, traj, frames = self._attempt(attempt_seed, replayed)
+                    if outcome == "quit":
+                        res.ended_by = "operator"
+                        break
+                    if outcome == "redo":
+                        res.redone += 1
+                        continue
+                    seed_offset += 1
+                    if outcome == "discard":
+                        res.discarded += 1
+                        continue
+                    res.attempts += 1
+                    if not traj.is_success:
+                        res.failures += 1
+                        # a replay keeps what it replays: the traces are of episodes that were kept
+                        if not (self.keep_failures or self.replay):
+                            continue
+                    self._record(traj, frames, attempt_seed, replayed)
+                    res.seeds.append(attempt_seed)
+                    bar.update(1)
+                    bar.set_postfix(success=f"{res.success_rate:.2f}", refresh=False)
+                else:
+                    res.ended_by = "done" if res.kept >= target else "attempts"
+        except DeviceError as e:
+            raise DeviceError(f"{e} — the {res.kept} finished episode(s) of this session are saved in {self.out} "
+                              "(continue with --append)") from e
+        finally:
+            bar.close()
+            for dev in reversed(connected):
+                dev.disconnect()
+            if self.key_tracker is not None:
+                self.key_tracker.stop()
+        if res.ended_by == "attempts":
+            raise RuntimeError(f"only {res.kept} of {self.episodes} episodes of {self.task} succeeded in "
+                               f"{res.attempts} attempts (kept episodes are saved in {self.out}); use "
+                               "--keep-failures to record failures too")
+        return res
+
+    def _attempt(self, attempt_seed: int, replayed):
+        env = self.env
+        settings = [t.mapping(i) for i, t in enumerate(replayed)] if replayed else self.mappings
+        mappers = [ActionMapper(m) for m in settings]
+        obs, info = env.reset(seed=attempt_seed)
+        builder = TrajectoryBuilder(obs, info["tip_position"], info["jaw_angle"])
+        frames: list[list] = [[] for _ in self.devices]
+        after_success = None
+        start = time.monotonic()
+        if self.live:
+            self.live.begin(attempt_seed)
+        for k in range(self.horizon):
+            if self.realtime:   # one step per control period, as the arm would move under a human hand
+                delay = start + k * CONTROL_PERIOD_S - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+            command = self._session_command()
+            if command is not None:
+                return command, None, None
+            if self.replay and any(d.exhausted for d in self.devices):
+                break
+            steps: list[MappedStep] = []
+            for dev, mapper, log in zip(self.devices, mappers, frames, strict=True):
+                dev.observe(obs, info)
+                frame = dev.read()
+                log.append(frame)
+                steps.append(mapper(frame))
+            action = self._action(steps, mappers)
+            obs, reward, terminated, truncated, info = env.step(action)
+            flags = {"clutch": any(s.clutch for s in steps), "jaw_button": any(s.jaw_button for s in steps)}
+            builder.add(action, obs, reward, info["is_success"], terminated, info["tip_position"], info["jaw_angle"],
+                        flags=flags)
+            if self.live:
+                self.live.step(k, obs, action, info, flags)
+            if info["is_success"] and after_success is None:
+                after_success = STEPS_AFTER_SUCCESS
+            elif after_success is not None:
+                after_success -= 1
+            if terminated or truncated or after_success == 0:
+                break
+        self._duration = time.monotonic() - start
+        return "done", builder.build(), frames
+
+    def _action(self, steps: list[MappedStep], mappers: list[ActionMapper]) -> np.ndarray:
+        space = self.env.action_space
+        if self.ecm_only:
+            s, settings = steps[0], mappers[0].settings
+            # ECM tasks are driven by the device without holding both buttons: its motion at the camera scale.
+            camera = s.camera if s.camera_mode else np.concatenate(
+                [s.arm[:3] * settings.camera_motion_scale / settings.motion_scale, s.arm[3:4]])
+            dim = space.shape[0]
+            action = camera[3:4] if dim == 1 else camera[:dim]
+        else:
+            action = np.concatenate([s.arm for s in steps])
+        # Record exactly what the env executes (it clips too).
+        return np.clip(np.asarray(action, np.float32), space.low, space.high)
+
+    def _session_command(self) -> str | None:
+        if self.key_tracker is None:
+            return None
+        from surrol_data.collect.devices.keyboard import DISCARD_KEY, QUIT_KEY, REDO_KEY
+
+        self.key_tracker.update()
+        pressed = self.key_tracker.pop_pressed()
+        for key, command in ((QUIT_KEY, "quit"), (REDO_KEY, "redo"), (DISCARD_KEY, "discard")):
+            if key in pressed:
+                return command
+        return None
+
+    def _record(self, traj, frames, attempt_seed: int, replayed) -> None:
+        simulated = any(d.name == "simulated-operator" for d in self.devices)
+        mappings = [t.mapping(i) for i, t in enumerate(replayed)] if replayed else self.mappings
+        device_settings = {
+            "devices": [{"name": d.name, "side": side or "", "mapping": m.as_dict(), "settings": d.settings()}
+                        for d, side, m in zip(self.devices, self.sides, mappings, strict=True)],
+            "horizon": self.horizon, "control_period_s": CONTROL_PERIOD_S, "realtime": self.realtime,
+            "steps_after_success": STEPS_AFTER_SUCCESS,
+        }
+        if replayed:
+            meta = replayed[0].meta
+            device_settings["replay_of"] = {"devices": meta.get("devices", []), "episode_index": meta.get("episode_index", -1),
+                                            "dataset": meta.get("dataset", "")}
+            operator = {k: meta[k] for k in ("operator_id", "skill", "operator_simulated", "operator_params")}
+        else:
+            operator = {"operator_id": self.operator_id, "skill": self.skill, "operator_simulated": simulated,
+                        "operator_params": json.dumps(self.devices[0].settings(), sort_keys=True, default=str)
+                        if simulated else "{}"}
+        provenance = {"source": "haptic", "device": self.devices[0].name, **operator,
+                      "device_settings": json.dumps(device_settings, sort_keys=True, default=str),
+                      "seed": attempt_seed, "duration_s": self._duration}
+        index = self.recorder.record(traj, provenance)
+        meta = {"task": self.task, "env_id": self.eid, "seed": attempt_seed, "horizon": self.horizon,
+                "episode_index": index, "dataset": str(self.out.resolve()), "success": traj.is_success,
+                "devices": [d.name for d in self.devices], "sides": [s or "" for s in self.sides],
+                "mapping": [m.as_dict() for m in mappings], **operator}
+        write_trace(trace_path(self.out, index), frames, traj.action, meta)
+        self.result.kept += 1
+        self.result.episode_indices.append(index)
+
+
+class _LiveStream:
+    """Streams each step to Rerun while the session runs: tool tip, goal, action channels, device flags."""
+
+    def __init__(self, target: str, task: str):
+        import rerun as rr
+
+        from surrol_data.viz.rerun_log import APPLICATION_ID
+
+        self.rr = rr
+        self.rec = rr.RecordingStream(APPLICATION_ID, recording_id=f"haptic-{task}-{time.time_ns()}")
+        if target == "spawn":
+            self.rec.spawn()
+        elif target.endswith(".rrd"):
+            self.rec.save(target)
+        else:
+            self.rec.connect_grpc(target)
+        self.attempt = -1
+
+    def begin(self, seed: int) -> None:
+        self.attempt += 1
+        self.prefix = f"live/attempt{self.attempt}_seed{seed}"
+
+    def step(self, k: int, obs: dict, action: np.ndarray, info: dict, flags: dict) -> None:
+        rr, rec = self.rr, self.rec
+        rec.set_time("step", sequence=k + 1)
+        rec.log(f"{self.prefix}/tip", rr.Points3D(np.asarray(info["tip_position"]).reshape(-1, 3), radii=0.001))
+        rec.log(f"{self.prefix}/goal", rr.Points3D(np.asarray(obs["desired_goal"]).reshape(-1, 3), radii=0.002))
+        for i, value in enumerate(np.asarray(action, np.float64)):
+            rec.log(f"{self.prefix}/action/a{i}", rr.Scalars(value))
+        for name, value in flags.items():
+            rec.log(f"{self.prefix}/flags/{name}", rr.Scalars(float(value)))
+        rec.log(f"{self.prefix}/success", rr.Scalars(float(info["is_success"])))

@@ -1,0 +1,497 @@
+"""The simulated human operator: a device whose frames come from a person model watching the scene.
+
+Per env step the session calls ``observe(obs, info)`` and then ``read()``. The operator works like a person
+at a Touch stylus who knows the task's steps (the task's plan, ``PsmEnv.oracle_waypoints``) but not the
+scene's exact numbers:
+
+* **perceive**: the error between the tool and the current subgoal, with noise that grows with distance,
+  worst along the height axis, and a per-person height misjudgement;
+* **plan**: a submovement of the hand through the person's internal model of the mapping (the inverse of
+  :class:`MappingSettings`, with a gain error for novices), timed by Fitts' law and the person's comfortable
+  tool speed, started after a reaction delay; corrective submovements follow until the error looks small;
+* **move**: the hand model of :mod:`surrol_data.collect.operator.motor` (minimum-jerk submovements, noise,
+  tremor) produces the stylus pose at each read;
+* **buttons**: button 1 to close the jaw on the object; button 2 (clutch) to re-centre the hand when the next
+  move would run into the edge of the stylus' workspace — experts re-position before a long move, novices
+  when they hit the edge;
+* **recover**: when the object does not come along as the tool lifts (``info["grasped"]`` is false), open,
+  back off, re-approach the object where it now lies, and grasp again; give up after a few failures.
+
+The operator keeps its own clock; every random draw comes from a generator seeded by (seed, operator
+identity, the episode's first observation), so the same operator on the same episode makes the same frames.
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from surrol_data.collect.devices.base import BUTTON_CLUTCH, BUTTON_JAW, Device, DeviceError, DeviceFrame
+from surrol_data.collect.mapping import MappingSettings
+from surrol_data.collect.operator.motor import MIN_JERK_PEAK_SPEED, POSE_DIM, Hand, fitts_duration
+from surrol_data.collect.operator.profiles import OperatorParams, identity_seed, operator_params
+from surrol_data.envs.physics import JAW_OPEN_RAD
+from surrol_data.envs.psm_env import PsmEnv, wrap_angle
+from surrol_data.envs.units import ACTION_POSITION_M, ACTION_YAW_RAD, CONTROL_PERIOD_S
+
+# The Touch stylus' usable workspace is about 160 × 120 × 70 mm (x, y, z) around its centre; its last gimbal
+# (the stylus roll that drives the tool's rotation) turns about ±125°.
+DEVICE_HALF_RANGE = np.array([80.0, 60.0, 35.0, 2.2])
+GIMBAL_MARGIN_RAD = 0.2
+# The fastest tool motion the env executes (an action of 1 per step); faster hand motion is clipped away.
+TOOL_MAX_SPEED_MM_S = ACTION_POSITION_M * 1000.0 / CONTROL_PERIOD_S
+TOOL_MAX_YAW_SPEED = ACTION_YAW_RAD / CONTROL_PERIOD_S
+# Observation layout of single-PSM tasks with an object (PsmEnv._get_obs): tip 0:3, tip yaw 5, jaw 6,
+# the object's grasp point 13:16 and its yaw 18.
+_TIP, _YAW, _JAW, _OBJECT_POINT, _OBJECT_YAW = slice(0, 3), 5, 6, slice(13, 16), 18
+_LIFT_TO_NOTICE_MM = 2.0     # a person sees the object stay behind once the tool has risen this much
+_CLUTCH_SPEED_MM_S = 250.0   # re-centring the hand moves nothing on screen: it goes at ordinary reaching speed
+_CLUTCH_TARGET_MM = 20.0     # and needs no precision (the Fitts width of a re-centring move)
+
+
+@dataclass
+class _Subgoal:
+    """One step of the operator's plan: bring the tool to ``target`` with ``yaw``, then set the jaw."""
+    target: np.ndarray | Callable[[dict], np.ndarray]   # tip position, real metres (or of the observation)
+    yaw: float | None
+    jaw_closed: bool
+    tol_mm: float
+    yaw_tol: float
+    final: bool = False
+    anchor: np.ndarray | None = None      # object grasp point and yaw when the target was set (object-relative)
+
+    def moved_with_object(self, point: np.ndarray, yaw: float) -> "_Subgoal":
+        """The same subgoal for an object that has moved since (after a failed grasp pushed it)."""
+        if self.anchor is None or callable(self.target):
+            return self
+        d_yaw = float(wrap_angle(yaw - self.anchor[3]))
+        return _Subgoal(self.target + (point - self.anchor[:3]), None if self.yaw is None else self.yaw + d_yaw,
+                        self.jaw_closed, self.tol_mm, self.yaw_tol, self.final, np.array([*point, yaw]))
+
+
+class SimulatedOperator(Device):
+    """A simulated person operating one PSM of ``env`` through a stylus (see the module docstring).
+
+    ``skill`` is a profile of :data:`PROFILES`; ``operator_id`` names the person (their parameters are drawn
+    from it); ``mapping`` is the device mapping the session uses (the operator's internal model inverts it);
+    ``seed`` makes sessions reproducible. ``overrides`` replaces model parameters (e.g. to make a person who
+    misjudges height by 3 mm).
+    """
+
+    name = "simulated-operator"
+
+    def __init__(self, env, skill: str, operator_id: str, mapping: MappingSettings, seed: int, arm: int = 0,
+                 *, overrides: dict | None = None):
+        task = getattr(env, "unwrapped", env)
+        if not isinstance(task, PsmEnv):
+            raise ValueError(f"the simulated operator drives single-PSM tasks only; {type(task).__name__} is not a "
+                             "PsmEnv (ECM tasks are not supported yet: use a human device)")
+        if task.action_space.shape != (5,):
+            raise ValueError(f"{type(task).__name__} takes a {task.action_space.shape} action; the simulated operator "
+                             "drives one PSM (5-D action) — bimanual tasks are not supported yet")
+        if arm != 0:
+            raise ValueError(f"arm={arm}: a single-PSM task has only arm 0")
+        if not isinstance(mapping, MappingSettings):
+            raise TypeError(f"mapping must be a MappingSettings, got {type(mapping).__name__}")
+        if not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+        self.env = task
+        self.mapping = mapping
+        self.skill = skill
+        self.operator_id = str(operator_id)
+        self.seed = int(seed)
+        self.arm = arm
+        self.params: OperatorParams = operator_params(skill, self.operator_id, overrides)
+        self._identity = identity_seed(skill, self.operator_id)
+        self._connected = False
+        self._clock = 0.0          # the device clock (s): frame timestamps, continuing across episodes
+        self._episode_start = 0.0
+        self._step = 0
+        self._obs: dict | None = None
+        self._info: dict = {}
+        self._marker = None
+        self._events: list[tuple[float, str]] = []
+
+    # ------------------------------------------------------------------ Device API
+    def connect(self) -> None:
+        self._connected = True
+
+    def disconnect(self) -> None:
+        self._connected = False
+
+    def settings(self) -> dict:
+        return {"model": "minimum-jerk submovements (Fitts timing, reaction delay, signal-dependent noise, tremor) "
+                         "following the task plan with perception noise, clutching and grasp recovery",
+                "skill": self.skill, "operator_id": self.operator_id, "seed": self.seed, "arm": self.arm,
+                "device_half_range": DEVICE_HALF_RANGE.tolist(), "params": self.params.as_dict()}
+
+    @property
+    def events(self) -> tuple[tuple[float, str], ...]:
+        """What the operator did this episode, as (seconds since the episode began, event): ``clutch``, ``hesitate``, ``close``,
+        ``open``, ``grasp-failed``, ``gave-up``, ``done``."""
+        return tuple(self._events)
+
+    def observe(self, obs: dict, info: dict) -> None:
+        self._obs, self._info = obs, info
+        plan = self.env.oracle_waypoints
+        # A reset makes a new plan (new dicts) and a new goal array: that is how a new episode shows itself.
+        marker = plan[0] if plan else self.env.goal
+        if marker is not self._marker:
+            self._marker = marker
+            self._begin_episode(obs, plan)
+
+    def read(self) -> DeviceFrame:
+        if not self._connected:
+            raise DeviceError("the simulated operator is not connected; call connect() (or use it as a context manager)")
+        if self._obs is None:
+            raise DeviceError("the simulated operator has not seen the scene; call observe(obs, info) after every "
+                              "env reset and step, before read()")
+        # The model runs on episode time from whole steps, so an episode's frames do not depend on the clock.
+        t = self._step * CONTROL_PERIOD_S
+        self._step += 1
+        self._clock = self._episode_start + self._step * CONTROL_PERIOD_S
+        self._monitor_grasp(t)
+        if t >= self._next_decision_s:
+            self._decide(t)
+        pose = self._hand.sample(t)
+        buttons = 0
+        if self._jaw_button_at(t):
+            buttons |= BUTTON_JAW
+        if self._clutch_from <= t < self._clutch_until:
+            buttons |= BUTTON_CLUTCH
+        gimbal = np.zeros(3)
+        gimbal[self.mapping.rotation_axis] = pose[3]
+        return DeviceFrame(position_mm=pose[:3].copy(), gimbal_rad=gimbal, buttons=buttons, t=self._episode_start + t)
+
+    # ------------------------------------------------------------------ episode set-up
+    def _begin_episode(self, obs: dict, plan: list[dict]) -> None:
+        episode_key = zlib.crc32(np.asarray(obs["observation"], np.float32).tobytes()
+                                 + np.asarray(obs["desired_goal"], np.float32).tobytes())
+        self._rng = np.random.default_rng(np.random.SeedSequence([self.seed, self._identity, episode_key]))
+        p = self.params
+        start = self._rng.normal(0.0, 1.0, POSE_DIM) * np.array([5.0, 5.0, 3.0, 0.05])   # where the hand rests
+        self._episode_start, self._step = self._clock, 0
+        self._hand = Hand(start, DEVICE_HALF_RANGE, p.motor_noise(), self._rng)
+        self._plan = self._subgoals(obs, plan)
+        self._index = 0
+        self._corrections = 0
+        self._fresh = True                 # the current subgoal has not been started yet
+        self._jaw_closed = False           # what the operator is doing with button 1
+        self._jaw_change_s = -np.inf       # when button 1 was last pressed or released
+        self._jaw_wait_last = None         # jaw angle at the last check while waiting for the jaw
+        self._holding = False              # closed on the object and waiting for it to come along
+        self._hold_height = 0.0
+        self._grasp_segment: tuple[int, int] | None = None
+        self._failures = 0
+        self._depth_bias = p.depth_bias_mm
+        self._clutch_from = self._clutch_until = -np.inf
+        self._idle = False
+        self._last_move: tuple[np.ndarray, float] | None = None
+        self._events = []
+        # The first look at a new scene takes longer than a reaction.
+        self._next_decision_s = 2.0 * self._reaction()
+
+    def _subgoals(self, obs: dict, plan: list[dict]) -> list[_Subgoal]:
+        state = np.asarray(obs["observation"], np.float64)
+        has_object = self.env.OBJECT_OBS
+        anchor = np.array([*state[_OBJECT_POINT], state[_OBJECT_YAW]]) if has_object else None
+        if not plan:
+            # A reach task (the achieved goal is the tip itself) needs no plan: the goal is the subgoal.
+            if np.allclose(obs["achieved_goal"], state[_TIP], atol=1e-6):
+                return [_Subgoal(lambda o: np.asarray(o["desired_goal"], np.float64), None, False, 2.0, np.inf,
+                                 final=True)]
+            raise DeviceError(f"{type(self.env).__name__} publishes no plan (oracle_waypoints is empty) and is not a "
+                              "reach task: the simulated operator cannot tell what to do in it")
+        goals = []
+        for i, wp in enumerate(plan):
+            target = wp["target"]
+            fixed = not callable(target)
+            goals.append(_Subgoal(
+                target=np.asarray(target, np.float64).copy() if fixed else target,
+                yaw=None if self.env.FIXED_YAW or "yaw" not in wp else float(wp["yaw"]),
+                jaw_closed=(not self.env.BLOCK_JAW) and float(wp["jaw"]) < 0,
+                tol_mm=1000.0 * float(wp.get("tol", 1e-3)),
+                yaw_tol=float(wp.get("yaw_tol", 0.05)),
+                final=i == len(plan) - 1,
+                anchor=anchor.copy() if fixed and anchor is not None else None))
+        return goals
+
+    # ------------------------------------------------------------------ perceiving
+    def _reaction(self) -> float:
+        p = self.params
+        return p.reaction_time_s * max(0.4, 1.0 + p.reaction_jitter * self._rng.normal())
+
+    def _perceived_error(self, goal: _Subgoal, t: float) -> tuple[np.ndarray, float]:
+        """(tool position error in mm, yaw error in rad) as the operator sees it, less the motion the hand is
+        still making (a person predicts where the current movement will take the tool)."""
+        p = self.params
+        state = np.asarray(self._obs["observation"], np.float64)
+        target = goal.target(self._obs) if callable(goal.target) else goal.target
+        err = (np.asarray(target, np.float64) - state[_TIP]) * 1000.0
+        spread = np.array([p.lateral_noise_mm, p.lateral_noise_mm, p.depth_noise_mm]) + p.weber_fraction * np.linalg.norm(err)
+        seen = err + self._rng.normal(0.0, 1.0, 3) * spread
+        seen[2] += self._depth_bias    # targets look higher than they are: the tool is stopped short
+        # The scene shows the hand's motion up to the previous frame; the rest is still to come.
+        pending = self._hand.remaining(t - CONTROL_PERIOD_S)
+        seen -= self._believed_tool_motion(pending)
+        if goal.yaw is None:
+            return seen, 0.0
+        yaw_seen = float(wrap_angle(goal.yaw - state[_YAW])) + p.yaw_noise_rad * self._rng.normal()
+        return seen, yaw_seen - pending[3] * self.mapping.rotation_scale * self.mapping.rotation_sign * self.params.internal_gain
+
+    # ------------------------------------------------------------------ the internal model of the mapping
+    def _felt_rotation(self) -> np.ndarray:
+        a = np.deg2rad(self.params.frame_rotation_deg)
+        return np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+
+    def _hand_motion_for(self, tool_mm: np.ndarray, yaw: float) -> np.ndarray:
+        """The hand motion the person believes moves the tool by ``tool_mm`` and turns it by ``yaw``."""
+        m, gain = self.mapping, self.params.internal_gain
+        hand = np.zeros(POSE_DIM)
+        hand[:3] = m.device_delta_mm(self._felt_rotation() @ tool_mm) / gain
+        hand[3] = yaw / (m.rotation_scale * m.rotation_sign) / gain
+        return hand
+
+    def _believed_tool_motion(self, hand: np.ndarray) -> np.ndarray:
+        m = self.mapping
+        return self._felt_rotation().T @ (m.tool_delta_mm(hand[:3]) * m.motion_scale * self.params.internal_gain)
+
+    # ------------------------------------------------------------------ deciding
+    def _decide(self, t: float) -> None:
+        """Look at the scene and choose the next action; sets when to look again."""
+        self._next_decision_s = t + CONTROL_PERIOD_S
+        p = self.params
+        while not self._idle:
+            goal = self._plan[self._index]
+            if goal.final and self._info.get("is_success", 0.0):
+                self._finish(t, "done")
+                return
+            jaw = self._jaw_progress(t)
+            if jaw == "moving":
+                return
+            if jaw == "settled":       # the jaw did what this subgoal asked: on to the next one
+                self._advance()
+                continue
+            err, yaw_err = self._perceived_error(goal, t)
+            good_enough = (np.linalg.norm(err) < max(goal.tol_mm, p.accuracy_mm)
+                           and abs(yaw_err) < max(goal.yaw_tol, p.yaw_accuracy_rad))
+            if not goal.final and (self._corrections >= p.max_corrections or self._stalled(t)):
+                good_enough = True   # the tool will not get closer (a contact, or the limit of the hand): accept
+            if not good_enough or goal.final:
+                # (The plan's last step ends only when the scene shows success: keep correcting until then.)
+                self._move(t, goal, err, yaw_err)
+                return
+            if goal.jaw_closed != self._jaw_closed:
+                if self._hand.busy_until() > t:        # let the tool come to rest before using the jaw
+                    self._next_decision_s = self._hand.busy_until() + 0.5 * CONTROL_PERIOD_S
+                    return
+                if goal.jaw_closed and self._prepare_hand_for_next(t):
+                    return
+                self._set_jaw(t, goal.jaw_closed)
+                return
+            self._advance()
+
+    def _advance(self) -> None:
+        self._index += 1
+        self._corrections = 0
+        self._fresh = True
+        self._last_move = None
+
+    def _stalled(self, t: float) -> bool:
+        """The last movement hardly moved the tool (it rests on something): pushing on will not help."""
+        if self._last_move is None or self._hand.busy_until() > t:
+            return False
+        tip_then, planned_mm = self._last_move
+        moved_mm = 1000.0 * np.linalg.norm(np.asarray(self._obs["observation"][_TIP], np.float64) - tip_then)
+        return planned_mm > 0.5 and moved_mm < 0.3 * planned_mm
+
+    def _finish(self, t: float, event: str) -> None:
+        self._idle = True
+        self._events.append((t, event))
+        self._next_decision_s = np.inf
+
+    def _hesitation(self, t: float) -> float:
+        p = self.params
+        if self._rng.random() >= p.hesitation_probability:
+            return 0.0
+        self._events.append((t, "hesitate"))
+        return float(self._rng.gamma(3.0, p.hesitation_mean_s / 3.0))
+
+    def _jaw_progress(self, t: float) -> str | None:
+        """After pressing or releasing button 1, watch the jaw until it stops moving: ``moving``, then
+        ``settled`` once (None when not waiting for the jaw)."""
+        if self._jaw_wait_last is None:
+            return None
+        angle = float(self._obs["observation"][_JAW])
+        # Settled: fully there, or stopped (closed on an object).
+        there = angle < 0.1 * JAW_OPEN_RAD if self._jaw_closed else angle > 0.9 * JAW_OPEN_RAD
+        settled = there or abs(angle - self._jaw_wait_last) < 0.02
+        self._jaw_wait_last = angle
+        if not settled:
+            self._next_decision_s = t + CONTROL_PERIOD_S
+            return "moving"
+        self._jaw_wait_last = None
+        if self._jaw_closed:
+            self._holding = True
+            self._hold_height = float(self._obs["observation"][2])
+            self._grasp_segment = self._segment_ending_at(self._index)
+        return "settled"
+
+    def _segment_ending_at(self, close_index: int) -> tuple[int, int]:
+        """The subgoals that lead to the grasp at ``close_index``: the open approach before it, and it."""
+        start = close_index
+        while start > 0 and not self._plan[start - 1].jaw_closed:
+            start -= 1
+        return start, close_index
+
+    # ------------------------------------------------------------------ acting
+    def _hesitation_once(self, t: float, goal: _Subgoal) -> float:
+        """A person may pause before starting a delicate step (a fine approach, a grasp, a retry) — once."""
+        if not self._fresh:
+            return 0.0
+        self._fresh = False
+        delicate = goal.tol_mm < 1.0 or goal.jaw_closed
+        return self._hesitation(t) if delicate else 0.0
+
+    def _set_jaw(self, t: float, closed: bool) -> None:
+        delay = self._reaction() + self._hesitation_once(t, self._plan[self._index])
+        self._jaw_closed = closed
+        self._jaw_change_s = t + delay
+        self._jaw_wait_last = float(self._obs["observation"][_JAW])
+        self._events.append((t + delay, "close" if closed else "open"))
+        if not closed:
+            self._holding = False
+        self._next_decision_s = t + delay + self.params.jaw_wait_s
+
+    def _jaw_button_at(self, t: float) -> bool:
+        return self._jaw_closed == (t >= self._jaw_change_s)
+
+    def _room(self) -> np.ndarray:
+        """How far from the centre the person lets the hand go before clutching."""
+        margin = 0.0 if self._jaw_closed else self.params.clutch_margin_mm
+        return DEVICE_HALF_RANGE - np.array([margin, margin, margin, GIMBAL_MARGIN_RAD])
+
+    def _prepare_hand_for_next(self, t: float) -> bool:
+        """An expert about to grasp re-positions the hand first if the carry would run into the workspace edge
+        (with the jaw button held a clutch press would switch to camera mode). True when it clutched."""
+        if not self.params.anticipates_clutch or self._index + 1 >= len(self._plan):
+            return False
+        err, yaw_err = self._perceived_error(self._plan[self._index + 1], t)
+        hand = self._hand_motion_for(err, yaw_err)
+        now, room = self._hand.planned_pose(), DEVICE_HALF_RANGE - np.array([2.0, 2.0, 2.0, GIMBAL_MARGIN_RAD])
+        if np.all(np.abs(now + hand) <= room):
+            return False
+        home = self._clutch_home(now, hand, room, reactive=False)
+        if home is None:
+            return False
+        self._clutch(t + self._reaction(), now, home)
+        return True
+
+    def _move(self, t: float, goal: _Subgoal, err_mm: np.ndarray, yaw_err: float) -> None:
+        p = self.params
+        delay = self._reaction() + self._hesitation_once(t, goal)
+        if abs(yaw_err) < max(goal.yaw_tol, p.yaw_accuracy_rad):
+            yaw_err = 0.0     # the orientation looks right: only the position is corrected
+        hand = self._hand_motion_for(err_mm, yaw_err)
+        now, room = self._hand.planned_pose(), self._room()
+        end = now + hand
+        if np.any(np.abs(end) > room):
+            # Holding the jaw button, a clutch press is camera mode: clutch then only when truly blocked.
+            home = self._clutch_home(now, hand, room, reactive=self._jaw_closed)
+            if home is not None:
+                self._clutch(t + delay, now, home)
+                return
+            hand = np.clip(end, -room, room) - now
+        tool_mm = float(np.linalg.norm(self._believed_tool_motion(hand)))
+        tol = max(goal.tol_mm, p.accuracy_mm)
+        duration = max(fitts_duration(tool_mm + 10.0 * abs(yaw_err), 2.0 * tol, p.fitts_intercept_s,
+                                      p.fitts_slope_s_per_bit),
+                       MIN_JERK_PEAK_SPEED * tool_mm / (p.speed_fraction * TOOL_MAX_SPEED_MM_S),
+                       MIN_JERK_PEAK_SPEED * abs(yaw_err) / (p.speed_fraction * TOOL_MAX_YAW_SPEED))
+        sub = self._hand.move(t + delay, hand, duration)
+        self._corrections += 1
+        self._last_move = (np.asarray(self._obs["observation"][_TIP], np.float64).copy(), tool_mm)
+        # Corrections overlap the movement they correct: look again about one reaction time before it ends.
+        self._next_decision_s = max(sub.end_s - p.reaction_time_s, t + delay + 0.5 * duration)
+
+    def _clutch_home(self, now: np.ndarray, hand: np.ndarray, room: np.ndarray,
+                     reactive: bool) -> np.ndarray | None:
+        """Where to put the hand with the clutch held before this move, or None to move (truncated) as is."""
+        p = self.params
+        over = np.abs(now + hand) > room
+        if p.anticipates_clutch and not reactive:
+            # Centre the coming move in the workspace; do it only if that really gains room.
+            home = np.clip(-hand / 2.0, -room, room)
+            gained = np.abs(np.clip(home + hand, -room, room) - home) - np.abs(np.clip(now + hand, -room, room) - now)
+            worth = over & (gained > np.array([5.0, 5.0, 5.0, 0.2]))
+            return np.where(worth, home, now) if worth.any() else None
+        # Otherwise the edge is noticed only when the hand is (almost) there; then every axis that would
+        # overrun is re-centred.
+        left = room - np.sign(hand) * now          # room still ahead in the direction of the move
+        blocked = over & (left < 0.3 * np.abs(hand))
+        if not blocked.any():
+            return None
+        home = np.where(over, self._rng.normal(0.0, 1.0, POSE_DIM) * np.array([6.0, 6.0, 4.0, 0.1]), now)
+        return np.clip(home, -room, room)
+
+    def _clutch(self, start: float, now: np.ndarray, home: np.ndarray) -> None:
+        """Hold button 2, carry the hand to ``home``, release: the tool stays where it is meanwhile."""
+        distance = float(np.linalg.norm(home[:3] - now[:3]))
+        duration = max(fitts_duration(distance, _CLUTCH_TARGET_MM, self.params.fitts_intercept_s,
+                                      self.params.fitts_slope_s_per_bit),
+                       MIN_JERK_PEAK_SPEED * distance / _CLUTCH_SPEED_MM_S, 0.3)
+        move_at = start + 0.1    # press first, then move
+        sub = self._hand.move(move_at, home - now, duration)
+        self._clutch_from = start
+        # Frames read before end + one period still contain hand motion; they must be clutched too.
+        self._clutch_until = sub.end_s + CONTROL_PERIOD_S - 1e-9
+        self._events.append((start, "clutch"))
+        self._next_decision_s = self._clutch_until + 1e-9
+
+    # ------------------------------------------------------------------ failed grasps
+    def _monitor_grasp(self, t: float) -> None:
+        """While holding, watch the object: if it stays behind as the tool rises, the grasp failed."""
+        if not self._holding or self._idle or self._info.get("grasped", True):
+            return
+        risen_mm = (float(self._obs["observation"][2]) - self._hold_height) * 1000.0
+        if risen_mm < _LIFT_TO_NOTICE_MM:
+            return
+        self._recover(t)
+
+    def _recover(self, t: float) -> None:
+        """Open, back off, re-approach the object where it lies now, grasp again (or give up)."""
+        p = self.params
+        self._failures += 1
+        self._events.append((t, "grasp-failed"))
+        delay = self._reaction()
+        self._hand.halt(t + delay)
+        self._holding = False
+        self._jaw_closed = False
+        self._jaw_change_s = t + delay
+        self._jaw_wait_last = None
+        self._events.append((t + delay, "open"))
+        if self._failures >= p.max_grasp_attempts:
+            self._finish(t + delay, "gave-up")
+            return
+        # The failure showed the person their height misjudgement: most of it is corrected for the retry.
+        self._depth_bias *= p.depth_learning
+        state = np.asarray(self._obs["observation"], np.float64)
+        point, yaw = state[_OBJECT_POINT], float(state[_OBJECT_YAW])
+        start, close = self._grasp_segment
+        self._plan = [*(g.moved_with_object(point, yaw) for g in self._plan[start:close + 1]), *self._plan[close + 1:]]
+        self._index = 0
+        self._corrections = 0
+        self._fresh = True
+        self._last_move = None
+        # Back off in one quick move (no aiming needed) to about backoff_mm above where the grasp closed,
+        # collect oneself, then re-approach.
+        risen_mm = (float(state[2]) - self._hold_height) * 1000.0
+        up_mm = max(p.backoff_mm - risen_mm, 0.0)
+        up = self._hand_motion_for(np.array([0.0, 0.0, up_mm]), 0.0)
+        up = np.clip(self._hand.planned_pose() + up, -DEVICE_HALF_RANGE, DEVICE_HALF_RANGE) - self._hand.planned_pose()
+        duration = max(MIN_JERK_PEAK_SPEED * up_mm / (p.speed_fraction * TOOL_MAX_SPEED_MM_S), 0.2)
+        sub = self._hand.move(t + delay + 0.1, up, duration)
+        self._next_decision_s = sub.end_s + self._hesitation(sub.end_s)

@@ -1,0 +1,109 @@
+"""Export a dataset to one robomimic HDF5 file (robomimic's v0.1 layout, read by robomimic >= 0.3).
+
+Layout (shared/docs/reference/algorithms.md §6.1)::
+
+    data                attrs total (samples), env_args (JSON: env_name = gym id, type = 2 (gym), env_kwargs)
+    data/demo_<i>       attrs num_samples, plus the episode's provenance (source, operator_id, skill, seed, ...)
+        obs/<key>       (N, dim) float32 for key in observation, achieved_goal, desired_goal: s_0..s_{N-1}
+        next_obs/<key>  (N, dim): s_1..s_N
+        actions (N, A), rewards (N,), dones (N,) (1 where the env terminated, and at the last step)
+        states (N, obs_dim): the observation vector (robomimic wants one; SurRoL has no MuJoCo state)
+    mask/<key>          byte strings of demo names — filter keys:
+        train, valid                       (stratified split, see surrol_data.datasets.split)
+        skill_<skill>, operator_<id>, source_<source>, successful
+        and <key>_train / <key>_valid for each of those (robomimic's convention for subset + validation)
+
+Train on a subset with robomimic's ``config.train.hdf5_filter_key = "skill_expert"``. Demo ``demo_i`` is the
+i-th exported episode; its source episode index is the demo attr ``episode_index``.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from surrol_data.datasets.info import read_sidecar
+from surrol_data.datasets.reader import DatasetError, DatasetReader
+from surrol_data.datasets.schema import PROVENANCE_COLUMNS
+from surrol_data.datasets.split import split_episodes
+
+GYM_ENV_TYPE = 2  # robomimic.envs.env_base.EnvType.GYM_TYPE
+OBS_KEYS = ("observation", "achieved_goal", "desired_goal")
+
+
+def mask_name(prefix: str, value: str) -> str:
+    """A filter-key name robomimic and HDF5 accept: ``operator_surgeon-1`` -> ``operator_surgeon-1``."""
+    clean = re.sub(r"[^A-Za-z0-9_.-]+", "_", str(value)).strip("_") or "unknown"
+    return f"{prefix}_{clean}"
+
+
+def export_robomimic(src: str | Path, out: str | Path, *, where: str | None = None, valid_fraction: float = 0.1,
+                     seed: int = 0, overwrite: bool = False, progress: bool = True) -> Path:
+    """Write the episodes of ``src`` (those matching ``where``, default all) to the robomimic file ``out``."""
+    import h5py
+
+    out = Path(out)
+    if out.exists() and not overwrite:
+        raise FileExistsError(f"{out} already exists: pass --overwrite or choose another file")
+    if out.suffix not in (".hdf5", ".h5"):
+        raise ValueError(f"{out}: a robomimic dataset is one .hdf5 file; name it e.g. demos.hdf5")
+    reader = DatasetReader(src)
+    episodes = reader.select(where)
+    if not episodes:
+        raise DatasetError(f"no episode of {src} to export" + (f" matches --where {where!r}" if where else ""))
+    rows = reader.episodes.set_index("episode_index")
+    side = read_sidecar(src)
+    env_id = side.get("env_id") or str(rows["env_id"].iloc[0])
+    chosen = reader.episodes[reader.episodes["episode_index"].isin(episodes)]
+    train, valid = split_episodes(chosen, valid_fraction, seed) if len(episodes) > 1 else (episodes, [])
+    is_train = set(train)
+
+    masks: dict[str, list[str]] = {"train": [], "valid": []}
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".partial")
+    total = 0
+    with h5py.File(tmp, "w") as f:
+        data = f.create_group("data")
+        for i, ep in enumerate(tqdm(episodes, desc=f"export robomimic {out.name}", unit="ep", disable=not progress)):
+            traj = reader.trajectory(ep)
+            name = f"demo_{i}"
+            demo = data.create_group(name)
+            n = len(traj)
+            obs = {"observation": traj.observation, "achieved_goal": traj.achieved_goal,
+                   "desired_goal": traj.desired_goal}
+            for key in OBS_KEYS:
+                demo.create_dataset(f"obs/{key}", data=obs[key][:-1])
+                demo.create_dataset(f"next_obs/{key}", data=obs[key][1:])
+            dones = traj.terminated.astype(np.int64)
+            dones[-1] = 1  # robomimic marks the end of each demo as done
+            demo.create_dataset("actions", data=traj.action)
+            demo.create_dataset("rewards", data=traj.reward.astype(np.float64))
+            demo.create_dataset("dones", data=dones)
+            demo.create_dataset("states", data=traj.observation[:-1])
+            demo.attrs["num_samples"] = n
+            demo.attrs["episode_index"] = int(ep)
+            row = rows.loc[ep]
+            for key in PROVENANCE_COLUMNS:
+                value = row[key]
+                demo.attrs[key] = value.item() if isinstance(value, np.generic) else value
+            total += n
+            split = "train" if ep in is_train else "valid"
+            masks[split].append(name)
+            for key in (mask_name("skill", row["skill"]), mask_name("operator", row["operator_id"]),
+                        mask_name("source", row["source"])) + (("successful",) if bool(row["success"]) else ()):
+                masks.setdefault(key, []).append(name)
+                masks.setdefault(f"{key}_{split}", []).append(name)
+        data.attrs["total"] = total
+        data.attrs["env_args"] = json.dumps({"env_name": env_id, "type": GYM_ENV_TYPE, "env_kwargs": {}})
+        data.attrs["surrol_data"] = json.dumps({"source": str(Path(src).resolve()), "where": where or "",
+                                                "task": side.get("task", ""), "split_seed": seed,
+                                                "valid_fraction": valid_fraction})
+        group = f.create_group("mask")
+        for key, names in sorted(masks.items()):
+            group.create_dataset(key, data=np.array(names, dtype="S"))
+    tmp.replace(out)  # a half-written export never carries the final name
+    return out

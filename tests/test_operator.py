@@ -1,0 +1,237 @@
+"""The simulated human operator: a device whose frames go through the real mapping into the real env."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import surrol_data.envs  # noqa: F401  (registers the ids)
+from surrol_data.collect.devices.base import BUTTON_CLUTCH, DeviceError, DeviceFrame
+from surrol_data.collect.mapping import ActionMapper, MappingSettings
+from surrol_data.collect.operator import PROFILES, SimulatedOperator, operator_params
+from surrol_data.collect.operator.motor import Hand, MotorNoise, fitts_duration, minimum_jerk
+from surrol_data.collect.operator.operator import DEVICE_HALF_RANGE
+from surrol_data.datasets.trajectory import Trajectory, TrajectoryBuilder
+from surrol_data.evaluation.metrics import Proficiency, trajectory_proficiency
+from surrol_data.evaluation.rollout import ORACLE, rollout
+
+HORIZON = 150   # the paper's human recordings are 150 steps (30 s)
+
+
+@pytest.fixture(scope="module")
+def pick_env():
+    env = gym.make("SurRoL/NeedlePick-v0", max_episode_steps=HORIZON)
+    yield env
+    env.close()
+
+
+def run_episode(env, operator: SimulatedOperator, seed: int, horizon: int = HORIZON,
+                stop_on_success: bool = False) -> tuple[Trajectory, list[DeviceFrame]]:
+    """The haptic session's per-step loop: observe, read, map, step; recorded like every device."""
+    mapper = ActionMapper(operator.mapping)
+    obs, info = env.reset(seed=seed)
+    builder = TrajectoryBuilder(obs, info["tip_position"], info["jaw_angle"])
+    frames = []
+    for _ in range(horizon):
+        operator.observe(obs, info)
+        frame = operator.read()
+        step = mapper(frame)
+        frames.append(frame)
+        obs, reward, terminated, truncated, info = env.step(step.arm)
+        builder.add(step.arm, obs, reward, info["is_success"], terminated, info["tip_position"], info["jaw_angle"],
+                    flags={"clutch": step.clutch, "jaw_button": step.jaw_button})
+        if terminated or truncated or (stop_on_success and info["is_success"]):
+            break
+    return builder.build(), frames
+
+
+def make_operator(env, skill: str, operator_id: str, seed: int = 0, **overrides) -> SimulatedOperator:
+    op = SimulatedOperator(env.unwrapped, skill, operator_id, MappingSettings(), seed, overrides=overrides or None)
+    op.connect()
+    return op
+
+
+def profile_runs(env, skill: str, operators: int, episodes: int, first_seed: int):
+    scores: list[Proficiency] = []
+    events = []
+    for i in range(operators):
+        op = make_operator(env, skill, f"{skill}-{i}")
+        for k in range(episodes):
+            traj, _ = run_episode(env, op, first_seed + i * episodes + k)
+            scores.append(trajectory_proficiency(traj))
+            events.append([e for _, e in op.events])
+    return scores, events
+
+
+# ---------------------------------------------------------------------------------------------- model parts
+def test_profiles_and_identities():
+    assert set(PROFILES) == {"expert", "novice"}
+    expert, novice = PROFILES["expert"], PROFILES["novice"]
+    assert expert.reaction_time_s < novice.reaction_time_s
+    assert expert.tremor_mm < novice.tremor_mm and expert.depth_noise_mm < novice.depth_noise_mm
+    assert expert.anticipates_clutch and not novice.anticipates_clutch
+    # An identity is stable, and identities of one profile differ.
+    assert operator_params("novice", "ann") == operator_params("novice", "ann")
+    assert operator_params("novice", "ann") != operator_params("novice", "bob")
+    assert 8.0 <= operator_params("novice", "ann").tremor_hz <= 12.0
+    assert operator_params("expert", "x", {"depth_bias_mm": 3.0}).depth_bias_mm == 3.0
+    with pytest.raises(ValueError, match="unknown operator skill"):
+        operator_params("surgeon", "ann")
+    with pytest.raises(ValueError, match="unknown operator parameter"):
+        operator_params("expert", "ann", {"speed": 1.0})
+
+
+def test_motor_model():
+    # Minimum jerk: from 0 to 1, symmetric about the midpoint; Fitts: harder targets take longer.
+    assert minimum_jerk(0.0) == 0.0 and minimum_jerk(1.0) == 1.0
+    assert minimum_jerk(0.3) + minimum_jerk(0.7) == pytest.approx(1.0)
+    assert fitts_duration(40.0, 1.0, 0.2, 0.1) > fitts_duration(40.0, 4.0, 0.2, 0.1) > fitts_duration(5.0, 4.0, 0.2, 0.1)
+    # Tremor of a still hand: its power sits in the 8–12 Hz band.
+    noise = MotorNoise(endpoint_sd=0.1, drift_sd=0.05, tremor_mm=0.2, tremor_hz=10.0, tremor_gimbal_rad=0.0)
+    hand = Hand(np.zeros(4), DEVICE_HALF_RANGE, noise, np.random.default_rng(0))
+    t = np.arange(2000) / 1000.0
+    x = np.array([hand.sample(s)[0] for s in t])
+    spectrum = np.abs(np.fft.rfft(x - x.mean()))
+    freqs = np.fft.rfftfreq(len(x), 1e-3)
+    assert 8.0 <= freqs[np.argmax(spectrum)] <= 12.0
+    assert 0.05 < np.std(x) < 0.5
+    # Signal-dependent noise: endpoints of long moves scatter more than those of short ones.
+    def scatter(amplitude):
+        ends = []
+        for seed in range(40):
+            h = Hand(np.zeros(4), DEVICE_HALF_RANGE, noise, np.random.default_rng(seed))
+            h.move(0.0, np.array([amplitude, 0.0, 0.0, 0.0]), 1.0)
+            ends.append(h.planned_pose()[0])
+        return np.std(ends)
+    assert scatter(60.0) > 3 * scatter(6.0)
+    with pytest.raises(ValueError, match="forward in time"):
+        hand.sample(0.5)
+
+
+# ---------------------------------------------------------------------------------------------- device contract
+def test_device_contract_and_bad_input(pick_env):
+    env = pick_env.unwrapped
+    op = SimulatedOperator(env, "expert", "ann", MappingSettings(), seed=0)
+    assert op.name == "simulated-operator"
+    settings = op.settings()
+    assert settings["skill"] == "expert" and settings["params"]["reaction_time_s"] > 0
+    import json
+    json.dumps(settings)   # provenance needs JSON
+    with pytest.raises(DeviceError, match="not connected"):
+        op.read()
+    op.connect()
+    with pytest.raises(DeviceError, match="observe"):
+        op.read()
+    with pytest.raises(ValueError, match="arm=1"):
+        SimulatedOperator(env, "expert", "ann", MappingSettings(), seed=0, arm=1)
+    with pytest.raises(ValueError, match="unknown operator skill"):
+        SimulatedOperator(env, "master", "ann", MappingSettings(), seed=0)
+    with pytest.raises(ValueError, match="seed"):
+        SimulatedOperator(env, "expert", "ann", MappingSettings(), seed=-1)
+    cartpole = gym.make("CartPole-v1")
+    with pytest.raises(ValueError, match="single-PSM"):
+        SimulatedOperator(cartpole.unwrapped, "expert", "ann", MappingSettings(), seed=0)
+    cartpole.close()
+
+
+def test_same_operator_same_episode_same_frames(pick_env):
+    rows = []
+    for _ in range(2):
+        op = make_operator(pick_env, "novice", "ann", seed=7)
+        _, frames = run_episode(pick_env, op, seed=3, horizon=60)
+        rows.append(np.array([f.to_row() for f in frames]))
+    np.testing.assert_array_equal(rows[0], rows[1])
+    # The episode does not depend on what the operator did before (its device clock has moved on).
+    op = make_operator(pick_env, "novice", "ann", seed=7)
+    run_episode(pick_env, op, seed=11, horizon=20)
+    _, frames = run_episode(pick_env, op, seed=3, horizon=60)
+    later = np.array([f.to_row() for f in frames])
+    np.testing.assert_array_equal(later[:, :7], rows[0][:, :7])
+    assert later[0, 7] > rows[0][0, 7]    # (the timestamps go on)
+    # Another seed or another person moves differently.
+    other = make_operator(pick_env, "novice", "ann", seed=8)
+    _, frames = run_episode(pick_env, other, seed=3, horizon=60)
+    assert not np.array_equal(np.array([f.to_row() for f in frames]), rows[0])
+
+
+def test_reach_task_without_a_plan():
+    env = gym.make("SurRoL/NeedleReach-v0", max_episode_steps=100)
+    try:
+        for skill in ("expert", "novice"):
+            traj, _ = run_episode(env, make_operator(env, skill, "ann"), seed=0, horizon=100)
+            assert traj.is_success, skill
+    finally:
+        env.close()
+
+
+# ---------------------------------------------------------------------------------------------- behaviour
+def test_recovers_after_a_failed_grasp(pick_env):
+    # A person who judges the needle 3 mm higher than it is closes the jaw above the wire; the failure
+    # teaches them (depth_learning=0 removes the misjudgement) and they grasp again.
+    op = make_operator(pick_env, "expert", "forced-miss", depth_bias_mm=3.0, depth_learning=0.0)
+    traj, _ = run_episode(pick_env, op, seed=1)
+    events = [e for _, e in op.events]
+    assert events.count("close") >= 2 and "grasp-failed" in events, events
+    assert events.index("grasp-failed") < len(events) - 1 - events[::-1].index("close")
+    assert traj.is_success
+    # The recorded data show it: two jaw closures with a re-opening in between, a lift after the second.
+    score = trajectory_proficiency(traj)
+    assert score.jaw_closures >= 2
+    jaw = traj.action[:, 4]
+    first_close = int(np.argmax(jaw < 0))
+    reopened = first_close + int(np.argmax(jaw[first_close:] >= 0))
+    assert reopened > first_close and np.any(jaw[reopened:] < 0)
+    assert traj.achieved_goal[-1, 2] > traj.achieved_goal[0, 2] + 0.02   # the needle was lifted in the end
+
+
+def test_clutch_at_the_workspace_edge(pick_env):
+    op = make_operator(pick_env, "novice", "ann")
+    traj, frames = run_episode(pick_env, op, seed=2)
+    clutched = traj.flags["clutch"]
+    onsets = np.flatnonzero(clutched & ~np.concatenate([[False], clutched[:-1]]))
+    assert len(onsets) >= 1 and trajectory_proficiency(traj).clutch_uses == len(onsets)
+    position = np.array([f.position_mm for f in frames])
+    for k in onsets:
+        # A novice clutches when the hand is at (or nearly at) the edge of the stylus workspace ...
+        assert np.max(np.abs(position[k]) / DEVICE_HALF_RANGE[:3]) > 0.8, position[k]
+        # ... and comes back off it, nearer the centre, with the clutch released.
+        release = k + int(np.argmax(~clutched[k:]))
+        assert np.max(np.abs(position[release]) / DEVICE_HALF_RANGE[:3]) < np.max(np.abs(position[k]) / DEVICE_HALF_RANGE[:3])
+    # Clutched frames move nothing; their buttons carry BUTTON_CLUTCH.
+    assert np.all(traj.action[clutched, :4] == 0)
+    assert all(frames[k].buttons & BUTTON_CLUTCH for k in np.flatnonzero(clutched))
+
+
+def _compare_profiles(env, operators: int, episodes: int):
+    oracle = [trajectory_proficiency(rollout(env, ORACLE, s)) for s in range(1000, 1000 + operators * episodes)]
+    expert, expert_events = profile_runs(env, "expert", operators, episodes, 1000)
+    novice, novice_events = profile_runs(env, "novice", operators, episodes, 1000)
+
+    def ok(scores, field):
+        return np.array([getattr(s, field) for s in scores if s.success], np.float64)
+
+    return oracle, expert, novice, expert_events + novice_events, ok
+
+
+def test_expert_and_novice_differ_on_needle_pick(pick_env):
+    oracle, expert, novice, _, ok = _compare_profiles(pick_env, operators=1, episodes=3)
+    assert sum(s.success for s in expert) == 3 and sum(s.success for s in novice) >= 2
+    assert ok(expert, "steps_to_success").mean() < ok(novice, "steps_to_success").mean()
+    assert ok(expert, "log_dimensionless_jerk").mean() > ok(novice, "log_dimensionless_jerk").mean()
+    assert ok(oracle, "steps_to_success").mean() < ok(expert, "steps_to_success").mean()
+
+
+@pytest.mark.slow
+def test_expert_and_novice_targets_30_attempts(pick_env):
+    oracle, expert, novice, events, ok = _compare_profiles(pick_env, operators=3, episodes=10)
+    assert np.mean([s.success for s in expert]) >= 0.9
+    assert np.mean([s.success for s in novice]) >= 0.6
+    for field in ("steps_to_success", "path_length_cm"):
+        assert ok(expert, field).mean() < ok(novice, field).mean(), field
+        for human in (expert, novice):
+            assert ok(human, field).mean() > ok(oracle, field).mean(), field
+            assert ok(human, field).std() > ok(oracle, field).std(), field
+    assert ok(expert, "log_dimensionless_jerk").mean() > ok(novice, "log_dimensionless_jerk").mean()
+    assert any("grasp-failed" in e for e in events)
+    assert sum(s.clutch_uses for s in novice) > 0 and sum(s.clutch_uses for s in expert) > 0
