@@ -53,16 +53,40 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
             seed: int = typer.Option(0, help="Seed of the first attempt; attempt i uses seed + i."),
             max_steps: Optional[int] = typer.Option(None, min=1, help="Episode horizon (default: the task's)."),
             keep_failures: bool = typer.Option(False, help="Also record episodes that never succeeded."),
-            append: bool = typer.Option(False, help="Add episodes to an existing dataset.")):
+            append: bool = typer.Option(False, help="Add episodes to an existing dataset."),
+            device: str = typer.Option("touch", help="haptic: touch, keyboard, gamepad, spacemouse, replay or operator."),
+            operator_id: str = typer.Option("", help="haptic: who operates (recorded in provenance)."),
+            skill: str = typer.Option("unknown", help="haptic: expert, novice or unknown (operator: expert|novice)."),
+            side: Optional[list[str]] = typer.Option(None, help="haptic: device side per arm (left/right); repeat "
+                                                     "for bimanual tasks (default right→PSM1, left→PSM2)."),
+            mapping: Optional[list[str]] = typer.Option(None, help="haptic: mapping override NAME=VALUE, e.g. "
+                                                        "motion_scale=0.4 or axis_sign=1,-1,1 (repeatable)."),
+            trace: Optional[Path] = typer.Option(None, help="haptic replay: a device trace, or a haptic dataset."),
+            gui: Optional[bool] = typer.Option(None, "--gui/--no-gui", help="haptic: PyBullet window (default: "
+                                               "with a display, for human devices)."),
+            rerun_live: Optional[str] = typer.Option(None, help="haptic: stream to Rerun: 'spawn', a "
+                                                     "rerun+http:// URL or an .rrd path.")):
     """Record demonstrations into a LeRobot v3 dataset with per-episode provenance."""
+    command = shlex.join(["surrol-data", *sys.argv[1:]])
     if source is Source.haptic:
-        _fail("--source haptic needs the teleoperation devices, which are not in this version yet; "
-              "use --source script")
+        from surrol_data.collect.devices import DeviceError
+        from surrol_data.collect.haptic_source import collect_haptic, parse_mapping
+
+        try:
+            result = collect_haptic(task, episodes, out, device=device, operator_id=operator_id, skill=skill,
+                                    sides=side or None, mapping=parse_mapping(mapping or []), trace=trace, seed=seed,
+                                    max_steps=max_steps, keep_failures=keep_failures, append=append, gui=gui,
+                                    rerun_live=rerun_live, command=command)
+        except (ValueError, FileExistsError, RuntimeError) as e:   # DeviceError is a RuntimeError
+            _fail(str(e) if not isinstance(e, DeviceError) else f"device: {e}")
+        console.print(f"recorded {result.kept} episodes ({result.attempts} attempts, success "
+                      f"{result.success_rate:.0%}, {result.discarded} discarded, {result.redone} redone) into {out}")
+        return
     from surrol_data.collect.script_source import collect_script
 
     try:
         result = collect_script(task, episodes, out, seed=seed, max_steps=max_steps, keep_failures=keep_failures,
-                                append=append, command=shlex.join(["surrol-data", *sys.argv[1:]]))
+                                append=append, command=command)
     except (ValueError, FileExistsError, RuntimeError) as e:
         _fail(str(e))
     console.print(f"recorded {result.kept} episodes ({result.attempts} attempts, oracle success "
@@ -129,6 +153,17 @@ def train_bc_cmd(dataset: Path = typer.Argument(..., help="Dataset folder with d
     console.print(f"trained on {len(episodes)} episodes ({len(obs)} samples); saved {policy.save(out)}")
 
 
+@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True, "help_option_names": []})
+def train(ctx: typer.Context):
+    """Train a policy (Hydra app): `surrol-data train algo=ddpgbc task=NeedlePick demos=script seed=0`; sweeps with -m.
+
+    Every argument goes to Hydra (overrides, -m, --cfg job, --hydra-help); configs are in the repo's configs/.
+    """
+    from surrol_data.train_app import main as train_main
+
+    train_main(list(ctx.args))
+
+
 @app.command()
 def view(dataset: Path = typer.Argument(..., help="Dataset folder."),
          out: Path = typer.Option(..., help="Rerun recording to write (.rrd)."),
@@ -156,24 +191,155 @@ def view(dataset: Path = typer.Argument(..., help="Dataset folder."),
 
 @app.command()
 def tasks():
-    """List the registered tasks with their observation, goal and action sizes and horizons."""
+    """List the registered tasks with their arms, observation, goal and action sizes and horizons."""
     import gymnasium as gym
     from rich.table import Table
 
     from surrol_data.envs import TASKS, env_id
 
-    table = Table(title="surrol_data tasks")
+    table = Table(title="surrol_data tasks (add camera=True to gymnasium.make for an endoscope image in obs)")
     for col in ("task", "env id", "arms", "obs", "goal", "action", "horizon"):
         table.add_column(col)
     for name in TASKS:
         env = gym.make(env_id(name))
         spaces = env.observation_space
-        n_arms = env.action_space.shape[0] // 5
-        table.add_row(name, env_id(name), "PSM" if n_arms == 1 else "PSM×2", str(spaces["observation"].shape[0]),
+        table.add_row(name, env_id(name), _arms(env), str(spaces["observation"].shape[0]),
                       str(spaces["desired_goal"].shape[0]), str(env.action_space.shape[0]),
                       str(env.spec.max_episode_steps))
         env.close()
     console.print(table)
+
+
+def _arms(env) -> str:
+    """Which robots a task drives: the ECM alone, or one PSM per 5-D half of the action."""
+    if getattr(env.unwrapped, "psm", None) is None:
+        return "ECM"
+    n = env.action_space.shape[0] // 5
+    return "PSM" if n == 1 else f"PSM×{n}"
+
+
+# ---------------------------------------------------------------- dataset tools (validate, merge, filter, split,
+# export, push): each writes a new dataset / file and keeps the per-episode provenance.
+
+def _this_command() -> str:
+    return shlex.join(["surrol-data", *sys.argv[1:]])
+
+
+@app.command()
+def validate(dataset: Path = typer.Argument(..., help="Dataset folder."),
+             reward: bool = typer.Option(True, help="Check rewards against the task's compute_reward (makes the env)."),
+             lerobot: bool = typer.Option(True, help="Check that LeRobotDataset reads it (imports lerobot, ~6 s).")):
+    """Check schema, provenance, counts, NaN/inf, rewards and LeRobot readability; exit 1 listing each problem."""
+    from surrol_data.datasets.validate import validate_dataset
+
+    problems = validate_dataset(dataset, check_reward=reward, check_lerobot=lerobot)
+    for problem in problems:
+        console.print(f"[bold red]✗[/] {problem}", markup=True, highlight=False)
+    if problems:
+        console.print(f"{dataset}: {len(problems)} problem(s)")
+        raise typer.Exit(code=1)
+    console.print(f"[green]✓[/] {dataset} is a valid surrol_data dataset")
+
+
+@app.command()
+def merge(out: Path = typer.Argument(..., help="New dataset folder."),
+          datasets: list[Path] = typer.Argument(..., help="Input dataset folders (same task and features).")):
+    """Merge datasets into a new one (episodes renumbered; provenance kept)."""
+    from surrol_data.datasets.merge import merge_datasets
+    from surrol_data.datasets.reader import DatasetError
+
+    try:
+        merge_datasets(out, datasets, command=_this_command())
+    except (DatasetError, ValueError, FileExistsError) as e:
+        _fail(str(e))
+    console.print(f"merged {len(datasets)} dataset(s) into {out}")
+
+
+@app.command("filter")
+def filter_cmd(dataset: Path = typer.Argument(..., help="Dataset folder."),
+               where: str = typer.Option(..., help="Expression over provenance, e.g. 'skill == \"expert\" and success'."),
+               out: Path = typer.Option(..., help="New dataset folder.")):
+    """Copy the episodes matching --where into a new dataset (provenance kept)."""
+    from surrol_data.datasets.merge import filter_dataset
+    from surrol_data.datasets.reader import DatasetError
+
+    try:
+        filter_dataset(dataset, out, where, command=_this_command())
+    except (DatasetError, ValueError, FileExistsError) as e:
+        _fail(str(e))
+    console.print(f"wrote the episodes where {where} to {out}")
+
+
+@app.command()
+def split(dataset: Path = typer.Argument(..., help="Dataset folder."),
+          out: Path = typer.Option(..., help="Folder for the two new datasets OUT/train and OUT/valid."),
+          valid_fraction: float = typer.Option(0.1, help="Fraction of each (source, skill, operator) group for valid."),
+          seed: int = typer.Option(0, help="Seed of the shuffle."),
+          where: Optional[str] = typer.Option(None, help="Only episodes matching this expression.")):
+    """Split into train and valid datasets, stratified by source, skill and operator."""
+    from surrol_data.datasets.merge import split_dataset
+    from surrol_data.datasets.reader import DatasetError
+
+    try:
+        parts = split_dataset(dataset, out, valid_fraction, seed, where=where, command=_this_command())
+    except (DatasetError, ValueError, FileExistsError) as e:
+        _fail(str(e))
+    console.print(f"wrote {parts['train']} and {parts['valid']}")
+
+
+class ExportFormat(str, Enum):
+    robomimic = "robomimic"
+    minari = "minari"
+
+
+@app.command()
+def export(dataset: Path = typer.Argument(..., help="Dataset folder."),
+           format: ExportFormat = typer.Option(..., "--format", help="robomimic (one .hdf5) or minari (a folder)."),
+           out: Path = typer.Option(..., help="robomimic: FILE.hdf5; minari: the datasets root folder."),
+           where: Optional[str] = typer.Option(None, help="Only episodes matching this expression."),
+           dataset_id: Optional[str] = typer.Option(None, help="minari: dataset id (default surrol/<task>/<name>-v0)."),
+           valid_fraction: float = typer.Option(0.1, help="robomimic: fraction in mask/valid."),
+           seed: int = typer.Option(0, help="robomimic: seed of the train/valid split."),
+           overwrite: bool = typer.Option(False, help="robomimic: replace an existing file.")):
+    """Export to robomimic HDF5 (with filter keys by skill/operator and train/valid) or to Minari."""
+    from surrol_data.datasets.reader import DatasetError
+
+    try:
+        if format is ExportFormat.robomimic:
+            from surrol_data.datasets.export_robomimic import export_robomimic
+
+            path = export_robomimic(dataset, out, where=where, valid_fraction=valid_fraction, seed=seed,
+                                    overwrite=overwrite)
+            console.print(f"wrote {path}")
+        else:
+            from surrol_data.datasets.export_minari import export_minari
+
+            ds = export_minari(dataset, out, dataset_id=dataset_id, where=where)
+            console.print(f"wrote Minari dataset {ds.spec.dataset_id!r} ({ds.total_episodes} episodes) under {out}; "
+                          f"load it with MINARI_DATASETS_PATH={out} and minari.load_dataset({ds.spec.dataset_id!r})")
+    except (DatasetError, ValueError, FileExistsError) as e:
+        _fail(str(e))
+
+
+@app.command()
+def push(dataset: Path = typer.Argument(..., help="Dataset folder."),
+         repo_id: str = typer.Option(..., help="Hub dataset repo, e.g. my-lab/needle-pick-demos."),
+         private: bool = typer.Option(False, help="Create the repo private."),
+         dry_run: bool = typer.Option(False, help="Only list what would be uploaded (no network)."),
+         skip_validation: bool = typer.Option(False, help="Push even if `validate` finds problems.")):
+    """Upload a dataset to the Hugging Face Hub (validates first; needs HF_HUB_OFFLINE=0 and a token)."""
+    from surrol_data.datasets.push import push_dataset
+    from surrol_data.datasets.reader import DatasetError
+
+    try:
+        plan = push_dataset(dataset, repo_id, private=private, dry_run=dry_run, skip_validation=skip_validation)
+    except (DatasetError, ValueError, RuntimeError) as e:
+        _fail(str(e))
+    for name in plan.files:
+        console.print(f"  {name}", highlight=False)
+    verb = "would upload" if dry_run else "uploaded"
+    console.print(f"{verb} {len(plan.files)} files ({plan.bytes / 1e6:.2f} MB) to datasets/{repo_id}"
+                  + (f", tag {plan.revision_tag}" if plan.revision_tag else ""))
 
 
 if __name__ == "__main__":
