@@ -8,28 +8,14 @@ from gymnasium.utils.env_checker import check_env
 import surrol_data.envs  # noqa: F401  (registers the ids)
 from surrol_data.envs.bimanual_env import approach_direction
 
+from oracle_episode import assert_same_episode, run_oracle, task_env_fixture
+
 TASKS = ["NeedleRegrasp", "BiPegTransfer"]
 # Oracle success at the final step in the reference (SurRoL main, 50 seeded episodes); ours must reach both
 # this and 95 %.
 REFERENCE_SUCCESS = {"NeedleRegrasp": 0.98, "BiPegTransfer": 0.94}
+env = task_env_fixture(TASKS)
 
-
-@pytest.fixture(scope="module", params=TASKS)
-def env(request):
-    e = gym.make(f"SurRoL/{request.param}-v0")
-    yield e
-    e.close()
-
-
-def run_oracle(env, seed, steps=None):
-    obs, info = env.reset(seed=seed)
-    observations, successes, grasped = [obs["observation"]], [], []
-    for _ in range(steps or env.spec.max_episode_steps):
-        obs, reward, terminated, truncated, info = env.step(env.unwrapped.oracle_action(obs))
-        observations.append(obs["observation"])
-        successes.append(info["is_success"])
-        grasped.append(info["grasped"])
-    return np.array(observations), np.array(successes), np.array(grasped)
 
 
 def test_check_env_passes(env):
@@ -57,12 +43,9 @@ def test_wrong_action_shape_is_refused(env):
 
 
 def test_equal_seeds_give_equal_episodes(env):
-    a, sa, ga = run_oracle(env, seed=11, steps=40)
+    first = run_oracle(env, seed=11, steps=40)
     run_oracle(env, seed=12, steps=10)
-    b, sb, gb = run_oracle(env, seed=11, steps=40)
-    np.testing.assert_array_equal(a, b)
-    np.testing.assert_array_equal(sa, sb)
-    np.testing.assert_array_equal(ga, gb)
+    assert_same_episode(first, run_oracle(env, seed=11, steps=40))
     assert not np.allclose(env.reset(seed=11)[0]["desired_goal"], env.reset(seed=13)[0]["desired_goal"])
 
 
@@ -144,7 +127,8 @@ def test_hand_over_leaves_the_needle_with_psm2_only():
 
 def test_bi_peg_transfer_hands_the_block_from_psm2_to_psm1():
     e = gym.make("SurRoL/BiPegTransfer-v0")
-    _, successes, grasped = run_oracle(e, seed=5)
+    episode = run_oracle(e, seed=5)
+    successes, grasped = episode.successes, episode.grasped
     states = [tuple(g) for g in grasped]
     first = {s: states.index(s) for s in set(states)}
     # PSM2 picks it up, both hold it, then PSM1 alone carries it; it ends released on the goal peg.
@@ -157,7 +141,7 @@ def test_bi_peg_transfer_hands_the_block_from_psm2_to_psm1():
 @pytest.mark.parametrize("task", TASKS)
 def test_oracle_success_rate(task, episodes):
     e = gym.make(f"SurRoL/{task}-v0")
-    results = [run_oracle(e, seed)[1][-1] for seed in range(episodes)]
+    results = [run_oracle(e, seed).successes[-1] for seed in range(episodes)]
     e.close()
     assert np.mean(results) >= max(0.95, REFERENCE_SUCCESS[task])
 

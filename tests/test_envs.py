@@ -14,24 +14,11 @@ from surrol_data.envs.psm import JAW_JOINTS
 from surrol_data.envs.psm_env import tool_down
 from surrol_data.envs.units import CONTROL_PERIOD_S, SCALING
 
+from oracle_episode import assert_same_episode, run_oracle, task_env_fixture
+
 TASKS = ["NeedleReach", "NeedlePick"]
+env = task_env_fixture(TASKS)
 
-
-@pytest.fixture(scope="module", params=TASKS)
-def env(request):
-    e = gym.make(f"SurRoL/{request.param}-v0")
-    yield e
-    e.close()
-
-
-def run_oracle(env, seed, steps=None):
-    obs, info = env.reset(seed=seed)
-    observations, successes = [obs["observation"]], []
-    for _ in range(steps or env.spec.max_episode_steps):
-        obs, reward, terminated, truncated, info = env.step(env.unwrapped.oracle_action(obs))
-        observations.append(obs["observation"])
-        successes.append(info["is_success"])
-    return np.array(observations), np.array(successes)
 
 
 def test_check_env_passes(env):
@@ -58,11 +45,9 @@ def test_max_episode_steps_overridable():
 
 
 def test_equal_seeds_give_equal_episodes(env):
-    a, sa = run_oracle(env, seed=11, steps=40)
+    first = run_oracle(env, seed=11, steps=40)
     run_oracle(env, seed=12, steps=10)
-    b, sb = run_oracle(env, seed=11, steps=40)
-    np.testing.assert_array_equal(a, b)
-    np.testing.assert_array_equal(sa, sb)
+    assert_same_episode(first, run_oracle(env, seed=11, steps=40))
     goal_11 = env.reset(seed=11)[0]["desired_goal"]
     goal_13 = env.reset(seed=13)[0]["desired_goal"]
     assert not np.allclose(goal_11, goal_13)
@@ -182,6 +167,6 @@ def test_grasp_attaches_only_when_both_jaws_touch():
 @pytest.mark.parametrize("task", TASKS)
 def test_oracle_success_rate(task, episodes):
     e = gym.make(f"SurRoL/{task}-v0")
-    results = [run_oracle(e, seed)[1][-1] for seed in range(episodes)]
+    results = [run_oracle(e, seed).successes[-1] for seed in range(episodes)]
     assert np.mean(results) >= 0.99
     e.close()

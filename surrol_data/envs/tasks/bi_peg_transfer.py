@@ -12,12 +12,13 @@ import numpy as np
 from surrol_data.envs import peg_board, physics
 from surrol_data.envs.bimanual_env import ArmStart, BimanualEnv
 from surrol_data.envs.psm_env import wrap_angle
+from surrol_data.envs.tasks.peg_blocks import PegBlocksScene
 from surrol_data.envs.tasks.peg_transfer import PegTransfer
 
 OPEN, CLOSE = 0.5, -0.5
 
 
-class BiPegTransfer(BimanualEnv):
+class BiPegTransfer(PegBlocksScene, BimanualEnv):
     TASK = ("Lift the red block with the left arm, hand it over to the right arm, and place it on the peg "
             "marked by the green target.")
     ROTATION_MODE = ("yaw", "yaw")
@@ -26,52 +27,20 @@ class BiPegTransfer(BimanualEnv):
     ORACLE_GAIN = 0.7
     TRANSIT_GAIN = 1.0                 # free-space moves: 1 cm per step, within the arms' speed limits
     NUM_BLOCKS = 6
-    START_PEGS = PegTransfer.START_PEGS
-    GOAL_PEGS = PegTransfer.GOAL_PEGS
-    BLOCK_YAW_RANGE = PegTransfer.BLOCK_YAW_RANGE
-    HEIGHT_TOLERANCE_M = PegTransfer.HEIGHT_TOLERANCE_M
     GRASP_DEPTH_M = PegTransfer.GRASP_DEPTH_M
     PEG_CLEARANCE_M = PegTransfer.PEG_CLEARANCE_M
     RELEASE_DEPTH_M = PegTransfer.RELEASE_DEPTH_M
     HOVER_M = 0.01                     # PSM1 waits this far above its grasp while PSM2 brings the block
     HANDOVER_Y = 0.0                   # the block is passed over the board's centre line
 
-    is_success = PegTransfer.is_success   # one success test for both peg tasks
-
-    # ------------------------------------------------------------------ scene
-    def build_scene(self) -> None:
-        self.board = peg_board.make_peg_board(self.client, visual=self.visual)
-        shape = peg_board.block_collision_shape(self.client)
-        colours = [peg_board.TARGET_RED] + [peg_board.OTHER_BLUE] * (self.NUM_BLOCKS - 1)
-        self._block_specs = [peg_board.block_spec(self.client, shape, c, visual=self.visual) for c in colours]
-        self.blocks: list[int] = []
-        self.respawn_objects()
-
-    def respawn_objects(self) -> None:
-        for body in self.blocks:
-            self.client.removeBody(body)
-        self.blocks = [peg_board.spawn_block(self.client, spec) for spec in self._block_specs]
-        self.object_id = self.blocks[0]   # the red one; the episode draws its peg
-
     def reset_task(self, rng):
-        pegs = rng.permutation(list(self.START_PEGS))[: self.NUM_BLOCKS]
-        yaws = rng.uniform(-self.BLOCK_YAW_RANGE, self.BLOCK_YAW_RANGE, size=self.NUM_BLOCKS)
-        for body, peg, yaw in zip(self.blocks, pegs, yaws):
-            peg_board.place_block_on_peg(self.client, body, self.board, int(peg), float(yaw))
-        self.start_peg = int(pegs[0])
+        self.place_blocks(rng)
         ws1, ws2 = self.WORKSPACES
         return (ArmStart(np.array([ws1[0, 0], ws1[1, 1], ws1[2, 1]]), 0.0, physics.JAW_OPEN_RAD),
                 ArmStart(np.array([ws2[0, 0], ws2[1, 0], ws2[2, 1]]), 0.0, physics.JAW_OPEN_RAD))
 
     def settle_objects(self) -> None:
-        # Resting blocks sleep until a jaw or another block touches them: their contacts with the pegs and
-        # the board would otherwise be most of a step's physics.
-        for body in self.blocks:
-            self.client.changeDynamics(body, -1, activationState=physics.pb.ACTIVATION_STATE_SLEEP)
-
-    def sample_goal(self, rng):
-        self.goal_peg = int(rng.choice(list(self.GOAL_PEGS)))
-        return self.board.peg_positions[self.goal_peg].copy()
+        self.sleep_blocks()
 
     # ------------------------------------------------------------------ observation
     def object_state(self):
@@ -80,9 +49,6 @@ class BiPegTransfer(BimanualEnv):
         euler = np.asarray(self.client.getEulerFromQuaternion(quat))
         return (pos, (pos + rot @ peg_board.BLOCK_WAYPOINTS[1], euler),
                 (pos + rot @ peg_board.BLOCK_WAYPOINTS[2], euler))
-
-    def achieved_goal(self) -> np.ndarray:
-        return peg_board.block_pose(self.client, self.object_id)[0]
 
     # ------------------------------------------------------------------ oracle
     def plan_oracle(self):

@@ -6,59 +6,29 @@ import numpy as np
 
 from surrol_data.envs import peg_board, physics
 from surrol_data.envs.psm_env import WORKSPACE, PsmEnv, wrap_angle
-from surrol_data.envs.units import SUCCESS_TOLERANCE_M
+from surrol_data.envs.tasks.peg_blocks import PegBlocksScene
 
 OPEN, CLOSE = 0.5, -0.5
 
 
-class PegTransfer(PsmEnv):
+class PegTransfer(PegBlocksScene, PsmEnv):
     TASK = "Transfer the red block from its peg onto the peg marked by the green target."
     ORACLE_GAIN = 0.7                # the reference's gain, used near the blocks and pegs
     TRANSIT_GAIN = 1.0               # full speed (1 cm per step) on the long moves above the pegs
-    NUM_BLOCKS = 4
-    START_PEGS = range(6, 12)        # blocks start on the lower cluster ...
-    GOAL_PEGS = range(0, 6)          # ... and the goal is one of the two upper rows
-    BLOCK_YAW_RANGE = np.deg2rad(30.0)
-    HEIGHT_TOLERANCE_M = 0.004       # success: xy within 5 mm and |dz| within 4 mm of the goal peg's origin
     GRASP_DEPTH_M = 0.0025           # tip below the block's top face when grasping a wall
     PEG_CLEARANCE_M = 0.003          # tip above the peg tops on the approach; carried block bottom above them
     RELEASE_DEPTH_M = 0.003          # block bottom below the goal peg's top when the jaw opens (peg in the hole)
 
     # ------------------------------------------------------------------ scene
-    def build_scene(self) -> None:
-        self.board = peg_board.make_peg_board(self.client, visual=self.visual)
-        shape = peg_board.block_collision_shape(self.client)
-        colours = [peg_board.TARGET_RED] + [peg_board.OTHER_BLUE] * (self.NUM_BLOCKS - 1)
-        self._block_specs = [peg_board.block_spec(self.client, shape, colour, visual=self.visual) for colour in colours]
-        self.blocks: list[int] = []
-        self.respawn_objects()
-
-    def respawn_objects(self) -> None:
-        for body in self.blocks:
-            self.client.removeBody(body)
-        self.blocks = [peg_board.spawn_block(self.client, spec) for spec in self._block_specs]
-        # The red block is always the first; which peg it starts on is what the episode draws.
-        self.object_id = self.blocks[0]
-
     def reset_task(self, rng):
-        pegs = rng.permutation(list(self.START_PEGS))[: self.NUM_BLOCKS]
-        yaws = rng.uniform(-self.BLOCK_YAW_RANGE, self.BLOCK_YAW_RANGE, size=self.NUM_BLOCKS)
-        for body, peg, yaw in zip(self.blocks, pegs, yaws):
-            peg_board.place_block_on_peg(self.client, body, self.board, int(peg), float(yaw))
-        self.start_peg = int(pegs[0])
+        self.place_blocks(rng)
         start = np.array([WORKSPACE[0, 0], WORKSPACE[1, 1], WORKSPACE[2, 1]])
         return start, 0.0, physics.JAW_OPEN_RAD
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         obs, info = super().reset(seed=seed, options=options)
-        # The base class puts the red block to sleep; the others rest too, and only a touch may wake them.
-        for body in self.blocks[1:]:
-            self.client.changeDynamics(body, -1, activationState=physics.pb.ACTIVATION_STATE_SLEEP)
+        self.sleep_blocks()   # the base class put the red block to sleep; the others rest too
         return obs, info
-
-    def sample_goal(self, rng):
-        self.goal_peg = int(rng.choice(list(self.GOAL_PEGS)))
-        return self.board.peg_positions[self.goal_peg].copy()
 
     # ------------------------------------------------------------------ observation and success
     def object_state(self):
@@ -67,13 +37,6 @@ class PegTransfer(PsmEnv):
         pitch = np.arcsin(np.clip(-rot[2, 0], -1.0, 1.0))
         euler = np.array([np.arctan2(rot[2, 1], rot[2, 2]), pitch, np.arctan2(rot[1, 0], rot[0, 0])])
         return pos, waypoint, euler
-
-    def achieved_goal(self) -> np.ndarray:
-        return peg_board.block_pose(self.client, self.object_id)[0]
-
-    def is_success(self, achieved_goal, desired_goal) -> np.ndarray:
-        d = np.asarray(achieved_goal, dtype=np.float64) - np.asarray(desired_goal, dtype=np.float64)
-        return (np.linalg.norm(d[..., :2], axis=-1) < SUCCESS_TOLERANCE_M) & (np.abs(d[..., 2]) < self.HEIGHT_TOLERANCE_M)
 
     # ------------------------------------------------------------------ oracle
     def plan_oracle(self):
