@@ -197,13 +197,14 @@ def tasks():
 
     from surrol_data.envs import TASKS, env_id
 
-    table = Table(title="surrol_data tasks (add camera=True to gymnasium.make for an endoscope image in obs)")
-    for col in ("task", "env id", "arms", "obs", "goal", "action", "horizon"):
+    table = Table(title="surrol_data tasks", caption="gymnasium.make(\"SurRoL/<task>-v0\"); camera=True adds the "
+                                                     "endoscope image to the observation")
+    for col in ("task", "arms", "obs", "goal", "action", "horizon"):
         table.add_column(col)
     for name in TASKS:
         env = gym.make(env_id(name))
         spaces = env.observation_space
-        table.add_row(name, env_id(name), _arms(env), str(spaces["observation"].shape[0]),
+        table.add_row(name, _arms(env), str(spaces["observation"].shape[0]),
                       str(spaces["desired_goal"].shape[0]), str(env.action_space.shape[0]),
                       str(env.spec.max_episode_steps))
         env.close()

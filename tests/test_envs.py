@@ -170,3 +170,19 @@ def test_oracle_success_rate(task, episodes):
     results = [run_oracle(e, seed).successes[-1] for seed in range(episodes)]
     assert np.mean(results) >= 0.99
     e.close()
+
+
+def test_tasks_command_lists_every_task_with_its_sizes():
+    from typer.testing import CliRunner
+
+    from surrol_data.cli import app
+
+    result = CliRunner().invoke(app, ["tasks"], terminal_width=120)
+    assert result.exit_code == 0, result.output
+    rows = {line.split("│")[1].strip(): [c.strip() for c in line.split("│")[2:-1]]
+            for line in result.output.splitlines() if line.startswith("│")}
+    assert set(rows) == set(surrol_data.envs.TASKS)
+    assert rows["NeedlePick"] == ["PSM", "19", "3", "5", "50"]
+    assert rows["BiPegTransfer"] == ["PSM×2", "35", "3", "10", "50"]
+    assert rows["MisOrient"] == ["ECM", "9", "1", "1", "50"]
+    assert rows["ActiveTrack"][-1] == "500"
