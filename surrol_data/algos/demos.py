@@ -1,0 +1,56 @@
+"""Choose demonstration episodes by provenance and read them through the dataset reader.
+
+``demos=expert`` in the Hydra app becomes ``DemoSpec(path=..., where={"skill": "expert"}, num=100)``: the
+first ``num`` episodes (in dataset order) of ``path`` whose provenance matches ``where`` — and, by default,
+that succeeded — read as :class:`~surrol_data.datasets.trajectory.Trajectory` objects.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from surrol_data.datasets.reader import DatasetReader
+from surrol_data.datasets.trajectory import Trajectory
+
+
+@dataclass
+class DemoSpec:
+    path: str | None = None            # LeRobot v3 dataset folder; None = no demos
+    where: dict = field(default_factory=dict)  # provenance column -> value or list of accepted values
+    num: int = 100                     # episodes to use (the first ones that match)
+    successful_only: bool = True
+
+
+def load_demos(spec: DemoSpec, env_id: str | None = None) -> tuple[list[Trajectory], list[int]]:
+    """(trajectories, episode indices) selected by ``spec``; empty lists when ``spec.path`` is None.
+
+    ``env_id``: refuse demos recorded on another task (their observation layout would not match).
+    """
+    if spec.path is None:
+        return [], []
+    if spec.num < 1:
+        raise ValueError(f"demos.num must be >= 1, got {spec.num} (use demos=none to train without demos)")
+    root = Path(spec.path)
+    if not root.exists():
+        raise FileNotFoundError(
+            f"demo dataset {root} does not exist. Record one, e.g. `surrol-data collect --source script "
+            f"--task NeedlePick --episodes 100 --out {root}`, or point demos.path at an existing dataset")
+    reader = DatasetReader(root)
+    where = {str(k): (list(v) if isinstance(v, (list, tuple)) else v) for k, v in dict(spec.where).items()}
+    if spec.successful_only:
+        where.setdefault("success", True)
+    if env_id is not None and "env_id" in reader.episodes.columns:
+        recorded = set(reader.episodes["env_id"])
+        if env_id not in recorded:
+            raise ValueError(f"demo dataset {root} holds episodes of {sorted(recorded)}, not of {env_id}; "
+                             "pick the dataset of the task being trained")
+        where.setdefault("env_id", env_id)
+    episodes = reader.select(where)
+    if len(episodes) < spec.num:
+        counts = reader.episodes.groupby(["source", "skill"]).size().to_dict() \
+            if {"source", "skill"} <= set(reader.episodes.columns) else {}
+        raise ValueError(f"demos: {len(episodes)} episodes of {root} match {where}, but demos.num={spec.num} were "
+                         f"asked for; lower demos.num or record more (episodes by (source, skill): {counts})")
+    chosen = episodes[: spec.num]
+    return reader.trajectories(chosen), chosen

@@ -1,0 +1,87 @@
+"""The Hydra app behind ``surrol-data train``: compose configs/ into a :class:`TrainConfig` and run it.
+
+    surrol-data train algo=ddpgbc task=NeedlePick demos=script seed=0
+    surrol-data train -m seed=0,1,2,3 demos=script,novice,expert       # local parallel sweep (joblib)
+    surrol-data train -m hydra/launcher=slurm seed=0,1,2                # the same sweep on SLURM (submitit)
+    surrol-data train resume=true ...same overrides...                  # continue a killed run
+
+Where the configs are: the repository's ``configs/`` folder, found next to the package of a source checkout
+(the project is installed editable from its clone, ``uv sync``'s default). A different folder can be
+given with ``SURROL_DATA_CONFIGS=/path/to/configs`` or Hydra's own ``--config-dir``. A wheel build that
+should carry them can map ``configs`` to ``surrol_data/configs`` (hatch ``force-include``), which is looked
+at first.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import hydra
+from omegaconf import DictConfig, OmegaConf
+
+from surrol_data.algos.demos import DemoSpec
+from surrol_data.algos.train import Schedule, TrainConfig, train
+
+CONFIG_ENV_VAR = "SURROL_DATA_CONFIGS"
+
+
+def config_dir() -> Path:
+    """The configs folder: $SURROL_DATA_CONFIGS, else configs shipped in the package, else the repo's configs/."""
+    candidates = [Path(os.environ[CONFIG_ENV_VAR])] if os.environ.get(CONFIG_ENV_VAR) else []
+    here = Path(__file__).resolve().parent
+    candidates += [here / "configs", here.parent / "configs"]
+    for path in candidates:
+        if (path / "config.yaml").is_file():
+            return path
+    raise FileNotFoundError(f"no Hydra configs found (looked for config.yaml in {[str(p) for p in candidates]}); "
+                            f"run from a clone of the repository or set {CONFIG_ENV_VAR}")
+
+
+def to_train_config(cfg: DictConfig) -> TrainConfig:
+    """The composed Hydra config as the typed config of :func:`surrol_data.algos.train.train`."""
+    algo, exp, demos = cfg.algo, cfg.experiment, cfg.demos
+    schedule_fields = set(Schedule.__dataclass_fields__)
+    schedule = {k: v for k, v in OmegaConf.to_container(exp, resolve=True).items() if k in schedule_fields}
+    schedule.update({k: algo[k] for k in ("offline_steps", "warmup_steps", "her_k", "demos_in_replay", "online")
+                     if k in algo})
+    demo_path = demos.path
+    if demo_path is not None:
+        demo_path = hydra.utils.to_absolute_path(str(demo_path))
+    return TrainConfig(
+        env_id=str(cfg.task.env_id),
+        run_dir=hydra.utils.to_absolute_path(str(cfg.run_dir)),
+        learner=str(algo.learner),
+        learner_params=OmegaConf.to_container(algo.params, resolve=True),
+        demos=DemoSpec(path=demo_path, where=OmegaConf.to_container(demos.where, resolve=True),
+                       num=int(demos.num), successful_only=bool(demos.successful_only)),
+        schedule=Schedule(**schedule),
+        seed=int(cfg.seed),
+        resume=bool(cfg.resume),
+        progress=bool(cfg.progress),
+        tensorboard=bool(cfg.tensorboard),
+    )
+
+
+def _run(cfg: DictConfig) -> float:
+    from surrol_data.datasets.reader import DatasetError
+
+    try:
+        rows = train(to_train_config(cfg))
+    except (FileNotFoundError, ValueError, DatasetError) as e:  # bad input: say what and how to fix, no traceback
+        print(f"error: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
+    # the sweeper's return value: final evaluation success
+    return float(rows[-1]["success_rate"]) if rows else float("nan")
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Run the Hydra app on ``argv`` (Hydra overrides and flags such as ``-m``, ``--cfg job``)."""
+    if argv is not None:
+        sys.argv = ["surrol-data train", *argv]
+    hydra.main(config_path=str(config_dir()), config_name="config", version_base="1.3")(_run)()
+
+
+if __name__ == "__main__":
+    main()
