@@ -133,6 +133,15 @@ def needle_spec(client, visual: bool = True) -> dict:
                 basePosition=[0, 0, 0], baseInertialFramePosition=(NEEDLE_COM * SCALING).tolist())
 
 
+def respawn_needle(client, spec: dict, old_body: int = -1) -> int:
+    """A fresh needle body from ``spec`` (see :func:`needle_spec`), replacing ``old_body`` if there is one."""
+    if old_body >= 0:
+        client.removeBody(old_body)
+    body = client.createMultiBody(**spec)
+    configure_needle(client, body)
+    return body
+
+
 def configure_needle(client, body: int) -> None:
     # A needle at rest may sleep (contacts woken by the jaws or the grasp); most steps it just lies on the
     # pad, and skipping its ten capsule contacts makes a control step ~25 % cheaper.

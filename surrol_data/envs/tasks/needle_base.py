@@ -18,10 +18,7 @@ class NeedleTaskBase(PsmEnv):
         self.respawn_objects()
 
     def respawn_objects(self) -> None:
-        if self.object_id >= 0:
-            self.client.removeBody(self.object_id)
-        self.object_id = self.client.createMultiBody(**self._needle_spec)
-        objects.configure_needle(self.client, self.object_id)
+        self.object_id = objects.respawn_needle(self.client, self._needle_spec, self.object_id)
 
     def place_needle(self, rng: np.random.Generator) -> None:
         xy = WORKSPACE[:2].mean(axis=1) + rng.uniform(-self.NEEDLE_JITTER_M, self.NEEDLE_JITTER_M, size=2)

@@ -49,10 +49,7 @@ class NeedleRegrasp(BimanualEnv):
         self.respawn_objects()
 
     def respawn_objects(self) -> None:
-        if self.object_id >= 0:
-            self.client.removeBody(self.object_id)
-        self.object_id = self.client.createMultiBody(**self._needle_spec)
-        objects.configure_needle(self.client, self.object_id)
+        self.object_id = objects.respawn_needle(self.client, self._needle_spec, self.object_id)
 
     # ------------------------------------------------------------------ geometry
     def _grasp_tip(self, key_point: np.ndarray, pitch: float) -> np.ndarray:
