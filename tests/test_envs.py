@@ -186,3 +186,15 @@ def test_tasks_command_lists_every_task_with_its_sizes():
     assert rows["BiPegTransfer"] == ["PSM×2", "35", "3", "10", "50"]
     assert rows["MisOrient"] == ["ECM", "9", "1", "1", "50"]
     assert rows["ActiveTrack"][-1] == "500"
+
+
+def test_euler_xyz_matches_pybullet():
+    from surrol_data.envs.physics import pb
+    from surrol_data.envs.psm import matrix_to_quat
+
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        angles = rng.uniform([-np.pi, -1.4, -np.pi], [np.pi, 1.4, np.pi])
+        rot = np.asarray(pb.getMatrixFromQuaternion(pb.getQuaternionFromEuler(angles.tolist()))).reshape(3, 3)
+        np.testing.assert_allclose(kin.euler_xyz(rot), angles, atol=1e-9)
+        np.testing.assert_allclose(kin.euler_xyz(rot), pb.getEulerFromQuaternion(matrix_to_quat(rot)), atol=1e-9)

@@ -127,6 +127,12 @@ def pose_from(position, rotation) -> np.ndarray:
     return t
 
 
+def euler_xyz(rotation: np.ndarray) -> np.ndarray:
+    """Extrinsic x-y-z Euler angles (roll, pitch, yaw) in rad of a rotation matrix: R = Rz(yaw) Ry(pitch) Rx(roll)."""
+    r = rotation
+    return np.array([np.arctan2(r[2, 1], r[2, 2]), np.arcsin(np.clip(-r[2, 0], -1.0, 1.0)), np.arctan2(r[1, 0], r[0, 0])])
+
+
 def rot_z3(a: float) -> np.ndarray:
     c, s = np.cos(a), np.sin(a)
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])

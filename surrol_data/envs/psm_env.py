@@ -36,11 +36,7 @@ def tip_orientation_features(rotation: np.ndarray) -> np.ndarray:
     Measuring relative to tool-down keeps the features continuous where plain world Euler angles of a
     downward-pointing frame would flip between ±π.
     """
-    r = rotation @ _TOOL_DOWN.T
-    pitch = np.arcsin(np.clip(-r[2, 0], -1.0, 1.0))
-    roll = np.arctan2(r[2, 1], r[2, 2])
-    yaw = np.arctan2(r[1, 0], r[0, 0])
-    return np.array([roll, pitch, yaw])
+    return kin.euler_xyz(rotation @ _TOOL_DOWN.T)
 
 
 def tool_down(yaw: float) -> np.ndarray:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from surrol_data.envs import kinematics as kin
 from surrol_data.envs import objects, physics
 from surrol_data.envs.psm_env import WORKSPACE, PsmEnv
 from surrol_data.envs.units import SCALING
@@ -52,8 +53,7 @@ class GauzeRetrieve(PsmEnv):
 
     def object_state(self):
         pos, rot = self.gauze_pose()
-        pitch = np.arcsin(np.clip(-rot[2, 0], -1.0, 1.0))
-        euler = np.array([np.arctan2(rot[2, 1], rot[2, 2]), pitch, np.arctan2(rot[1, 0], rot[0, 0])])
+        euler = kin.euler_xyz(rot)
         # The gauze has no waypoint link (the reference's obj_link1 = -1): the "waypoint" is the base itself.
         return pos, pos, euler
 

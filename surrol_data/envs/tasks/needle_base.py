@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from surrol_data.envs import kinematics as kin
 from surrol_data.envs import objects
 from surrol_data.envs.psm_env import WORKSPACE, PsmEnv
 
@@ -36,9 +37,7 @@ class NeedleTaskBase(PsmEnv):
     def object_state(self):
         pos, rot = objects.needle_pose(self.client, self.object_id)
         wp = pos + rot @ objects.NEEDLE_WAYPOINTS[1]
-        # Needle orientation as Euler xyz (its frame has z up when it lies flat).
-        pitch = np.arcsin(np.clip(-rot[2, 0], -1.0, 1.0))
-        euler = np.array([np.arctan2(rot[2, 1], rot[2, 2]), pitch, np.arctan2(rot[1, 0], rot[0, 0])])
+        euler = kin.euler_xyz(rot)
         return pos, wp, euler
 
     def achieved_goal(self) -> np.ndarray:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from surrol_data.envs import kinematics as kin
 from surrol_data.envs import peg_board, physics
 from surrol_data.envs.psm_env import WORKSPACE, PsmEnv, wrap_angle
 from surrol_data.envs.tasks.peg_blocks import PegBlocksScene
@@ -34,8 +35,7 @@ class PegTransfer(PegBlocksScene, PsmEnv):
     def object_state(self):
         pos, rot = peg_board.block_pose(self.client, self.object_id)
         waypoint = pos + rot @ peg_board.BLOCK_WAYPOINTS[1]
-        pitch = np.arcsin(np.clip(-rot[2, 0], -1.0, 1.0))
-        euler = np.array([np.arctan2(rot[2, 1], rot[2, 2]), pitch, np.arctan2(rot[1, 0], rot[0, 0])])
+        euler = kin.euler_xyz(rot)
         return pos, waypoint, euler
 
     # ------------------------------------------------------------------ oracle
