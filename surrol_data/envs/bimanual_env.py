@@ -137,13 +137,7 @@ class BimanualEnv(PsmEnv):
             self.grasps[self.HELD_AT_START].attach()
         self.simulate(physics.SETTLE_STEPS)
         self.settle_objects()
-        self.goal = np.asarray(self.sample_goal(self.np_random), dtype=np.float64)
-        self.client.resetBasePositionAndOrientation(self.goal_marker, (self.goal * SCALING).tolist(), [0, 0, 0, 1])
-        self._waypoints = self.plan_oracle()
-        self._wp_index = 0
-        self._hold = 0
-        obs = self._get_obs()
-        return obs, self._info(obs)
+        return self._start_episode()
 
     def step(self, action):
         action = np.asarray(action, dtype=np.float64)

@@ -147,6 +147,10 @@ class PsmEnv(gym.Env):
             # The settled object sleeps until something touches it (Bullet wakes it on contact): a resting
             # object's contacts are most of a step's physics cost.
             self.client.changeDynamics(self.object_id, -1, activationState=physics.pb.ACTIVATION_STATE_SLEEP)
+        return self._start_episode()
+
+    def _start_episode(self):
+        """After the scene has settled: draw the goal, plan the oracle, and return the first (obs, info)."""
         self.goal = np.asarray(self.sample_goal(self.np_random), dtype=np.float64)
         self.client.resetBasePositionAndOrientation(self.goal_marker, (self.goal * SCALING).tolist(), [0, 0, 0, 1])
         self._waypoints = self.plan_oracle()
