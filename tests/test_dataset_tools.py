@@ -7,22 +7,17 @@ rewards agree with the task's compute_reward, labelled with varied provenance (s
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-os.environ.setdefault("HF_DATASETS_CACHE", str(Path(tempfile.gettempdir()) / "surrol_data_test_hf_cache"))
-os.environ.setdefault("HF_HUB_OFFLINE", "1")
-
-from surrol_data.datasets.reader import DatasetError, DatasetReader  # noqa: E402
-from surrol_data.datasets.schema import PROVENANCE_COLUMNS  # noqa: E402
-from surrol_data.datasets.split import split_episodes  # noqa: E402
-from surrol_data.datasets.where import WhereError, compile_where  # noqa: E402
+from surrol_data.datasets.reader import DatasetError, DatasetReader
+from surrol_data.datasets.schema import PROVENANCE_COLUMNS
+from surrol_data.datasets.split import split_episodes
+from surrol_data.datasets.where import WhereError, compile_where
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 TASK, ENV_ID = "NeedleReach", "SurRoL/NeedleReach-v0"

@@ -6,19 +6,14 @@ import json
 import os
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-os.environ.setdefault("HF_DATASETS_CACHE", str(Path(tempfile.gettempdir()) / "surrol_data_test_hf_cache"))
-os.environ.setdefault("HF_HUB_OFFLINE", "1")
-sys.path.insert(0, str(Path(__file__).parent))
+from test_dataset_tools import LABELS, make_dataset
 
-from test_dataset_tools import LABELS, make_dataset  # noqa: E402
-
-from surrol_data.datasets.reader import DatasetReader  # noqa: E402
+from surrol_data.datasets.reader import DatasetReader
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 

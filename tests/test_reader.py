@@ -3,23 +3,18 @@
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-os.environ.setdefault("HF_DATASETS_CACHE", str(Path(tempfile.gettempdir()) / "surrol_data_test_hf_cache"))
-os.environ.setdefault("HF_HUB_OFFLINE", "1")
-
-from surrol_data.datasets.info import render_info_text, summarize  # noqa: E402
-from surrol_data.datasets.reader import DatasetError, DatasetReader  # noqa: E402
-from surrol_data.datasets.schema import PROVENANCE_COLUMNS, frame_features  # noqa: E402
-from surrol_data.datasets.trajectory import Trajectory  # noqa: E402
-from surrol_data.evaluation.metrics import trajectory_proficiency  # noqa: E402
+from surrol_data.datasets.info import render_info_text, summarize
+from surrol_data.datasets.reader import DatasetError, DatasetReader
+from surrol_data.datasets.schema import PROVENANCE_COLUMNS, frame_features
+from surrol_data.datasets.trajectory import Trajectory
+from surrol_data.evaluation.metrics import trajectory_proficiency
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 OBS, GOAL, ARMS = 11, 6, 2

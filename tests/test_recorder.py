@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys
-import tempfile
 import textwrap
 import time
 from pathlib import Path
@@ -15,20 +13,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-# Keep the HF datasets Arrow cache (written when lerobot loads a dataset) out of the user's home.
-os.environ.setdefault("HF_DATASETS_CACHE", str(Path(tempfile.gettempdir()) / "surrol_data_test_hf_cache"))
-os.environ.setdefault("HF_HUB_OFFLINE", "1")
-
-from surrol_data.collect.recorder import DatasetRecorder, repair  # noqa: E402
-from surrol_data.datasets.reader import DatasetError, DatasetReader, unreadable_parquet_files  # noqa: E402
-from surrol_data.datasets.schema import (  # noqa: E402
+from surrol_data.collect.recorder import DatasetRecorder, repair
+from surrol_data.datasets.reader import DatasetError, DatasetReader, unreadable_parquet_files
+from surrol_data.datasets.schema import (
     PROVENANCE_COLUMNS,
     ProvenanceError,
     frame_features,
     normalize_provenance,
 )
-from surrol_data.datasets.trajectory import Trajectory  # noqa: E402
-from surrol_data.evaluation.metrics import trajectory_proficiency  # noqa: E402
+from surrol_data.datasets.trajectory import Trajectory
+from surrol_data.evaluation.metrics import trajectory_proficiency
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 OBS, GOAL = 7, 3

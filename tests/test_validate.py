@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import subprocess
 import sys
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -16,14 +14,10 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 
-os.environ.setdefault("HF_DATASETS_CACHE", str(Path(tempfile.gettempdir()) / "surrol_data_test_hf_cache"))
-os.environ.setdefault("HF_HUB_OFFLINE", "1")
-sys.path.insert(0, str(Path(__file__).parent))
+from test_dataset_tools import make_dataset
 
-from test_dataset_tools import make_dataset  # noqa: E402
-
-from surrol_data.collect.recorder import _write_one_row_group_per_episode  # noqa: E402
-from surrol_data.datasets.validate import validate_dataset  # noqa: E402
+from surrol_data.collect.recorder import _write_one_row_group_per_episode
+from surrol_data.datasets.validate import validate_dataset
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
