@@ -212,24 +212,18 @@ class BimanualEnv(PsmEnv):
         and ``angle_tol`` (rad). A waypoint is done when both arms are within tolerance for ``hold`` steps."""
         return list(self._waypoints)
 
-    def oracle_action(self, obs: dict) -> np.ndarray:
-        """Scripted linear-waypoint policy for both arms at once (see ``oracle_waypoints``): each tip moves
-        towards its target at most ``gain`` cm per axis per step and turns towards its angle."""
+    def _waypoint_action(self, wp: dict, obs: dict) -> tuple[np.ndarray, bool]:
+        """Both arms at once (the oracle loop is PsmEnv's): each tip moves towards its target at most ``gain``
+        cm per axis per step and turns towards its angle; the waypoint is reached when both arms are."""
         state = np.asarray(obs["observation"], dtype=np.float64)
-        while self._wp_index < len(self._waypoints):
-            wp = self._waypoints[self._wp_index]
-            actions, reached = [], True
-            for arm, step in enumerate(wp["arms"]):
-                action, arm_reached = self._arm_oracle_action(arm, step, state, obs)
-                actions.append(action)
-                reached = reached and arm_reached
-            if reached and self._hold >= wp.get("hold", 0):
-                self._wp_index += 1
-                self._hold = 0
-                continue
-            if reached:
-                self._hold += 1
-            return np.concatenate(actions).astype(np.float32)
+        actions, reached = [], True
+        for arm, step in enumerate(wp["arms"]):
+            action, arm_reached = self._arm_oracle_action(arm, step, state, obs)
+            actions.append(action)
+            reached = reached and arm_reached
+        return np.concatenate(actions).astype(np.float32), reached
+
+    def _idle_action(self) -> np.ndarray:
         last = self._waypoints[-1]["arms"] if self._waypoints else ({"jaw": 0.5}, {"jaw": 0.5})
         return np.array([0, 0, 0, 0, last[0]["jaw"], 0, 0, 0, 0, last[1]["jaw"]], dtype=np.float32)
 

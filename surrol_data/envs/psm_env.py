@@ -247,22 +247,31 @@ class PsmEnv(gym.Env):
         """Scripted linear-waypoint policy: move the tip towards the next waypoint at most ``ORACLE_GAIN`` cm
         per axis per step, turn the yaw towards the waypoint's, set the jaw; a waypoint is done when the tip
         is within its tolerance (and, for closing waypoints, after the jaw had time to close)."""
-        state = obs["observation"]
-        tip, yaw = state[:3].astype(np.float64), float(state[5])
         while self._wp_index < len(self._waypoints):
             wp = self._waypoints[self._wp_index]
-            target = wp["target"](obs) if callable(wp["target"]) else wp["target"]
-            err = target - tip
-            yaw_err = float(wrap_angle(wp.get("yaw", yaw) - yaw))
-            reached = np.linalg.norm(err) < wp.get("tol", 1e-3) and abs(yaw_err) < wp.get("yaw_tol", 0.05)
+            action, reached = self._waypoint_action(wp, obs)
             if reached and self._hold >= wp.get("hold", 0):
                 self._wp_index += 1
                 self._hold = 0
                 continue
             if reached:
                 self._hold += 1
-            delta = err / ACTION_POSITION_M
-            delta = delta / max(1.0, np.abs(delta).max()) * wp.get("gain", self.ORACLE_GAIN)
-            d_yaw = np.clip(yaw_err / ACTION_YAW_RAD, -0.4, 0.4)
-            return np.array([*delta, d_yaw, wp["jaw"]], dtype=np.float32)
+            return action
+        return self._idle_action()
+
+    def _waypoint_action(self, wp: dict, obs: dict) -> tuple[np.ndarray, bool]:
+        """The oracle's action towards waypoint ``wp`` and whether the tip is already within its tolerances."""
+        state = obs["observation"]
+        tip, yaw = state[:3].astype(np.float64), float(state[5])
+        target = wp["target"](obs) if callable(wp["target"]) else wp["target"]
+        err = target - tip
+        yaw_err = float(wrap_angle(wp.get("yaw", yaw) - yaw))
+        reached = np.linalg.norm(err) < wp.get("tol", 1e-3) and abs(yaw_err) < wp.get("yaw_tol", 0.05)
+        delta = err / ACTION_POSITION_M
+        delta = delta / max(1.0, np.abs(delta).max()) * wp.get("gain", self.ORACLE_GAIN)
+        d_yaw = np.clip(yaw_err / ACTION_YAW_RAD, -0.4, 0.4)
+        return np.array([*delta, d_yaw, wp["jaw"]], dtype=np.float32), reached
+
+    def _idle_action(self) -> np.ndarray:
+        """After the last waypoint: hold still with the last waypoint's jaw."""
         return np.array([0, 0, 0, 0, self._waypoints[-1]["jaw"] if self._waypoints else 0.5], dtype=np.float32)
