@@ -117,3 +117,89 @@ def test_path_length_is_translation_invariant_and_at_least_the_chord(path, shift
     length = path_length_m(path)
     assert length == pytest.approx(path_length_m(path + shift), rel=1e-9, abs=1e-12)
     assert length >= np.linalg.norm(path[-1] - path[0]) - 1e-12
+
+
+# ------------------------------------------------------------------ metrics added for the Table I study
+from surrol_data.evaluation.metrics import (  # noqa: E402
+    DeviceTrace, angular_economy_rad, bootstrap_ci, estimate, idle_time_s, proficiency, sparc)
+
+
+def test_minimum_jerk_has_the_textbook_smoothness():
+    # x(s) = D(10s³ − 15s⁴ + 6s⁵): ∫ jerk² = 720 D²/T⁵, so LDLJ = −ln 720; its SPARC is −1.41.
+    t = np.linspace(0.0, 1.0, 1001)
+    path = minimum_jerk(1000, 0.1)
+    assert log_dimensionless_jerk(path, dt=1e-3) == pytest.approx(-math.log(720), abs=0.02)
+    assert sparc(path, dt=1e-3) == pytest.approx(-1.41, abs=0.02)
+    tremor = path + 0.0005 * np.sin(2 * np.pi * 10 * t)[:, None]  # 0.5 mm of 10 Hz tremor
+    assert sparc(tremor, dt=1e-3) < sparc(path, dt=1e-3) - 0.5
+
+
+def test_smoothness_comes_from_the_device_trace_when_there_is_one():
+    traj = make_traj(straight_line(10))
+    t = np.linspace(0.0, 2.0, 2001)
+    s = t / 2.0
+    x = 100.0 * (10 * s**3 - 15 * s**4 + 6 * s**5)  # millimetres: smoothness is unit-free
+    trace = DeviceTrace(np.stack([x, 0 * x, 0 * x], axis=1), t)
+    p = trajectory_proficiency(traj, device_trace=trace)
+    assert p.smoothness_source == "device"
+    assert p.sparc == pytest.approx(-1.41, abs=0.02)
+    assert trajectory_proficiency(traj).smoothness_source == "tip"
+
+
+def test_failed_grasps_and_drops_from_the_grasp_record():
+    jaw = np.array([1, -1, -1, 1, -1, -1, -1, -1, 1, 1], np.float32)   # closures at steps 1 and 4
+    grasped = np.array([0, 0, 0, 0, 0, 1, 1, 0, 0, 0], bool)           # 1st closure empty; 2nd holds, then loses it
+    traj = make_traj(straight_line(10), jaw=jaw)
+    traj.flags["grasped"] = grasped
+    p = trajectory_proficiency(traj)
+    assert p.jaw_closures == 2
+    assert p.failed_grasps == 1
+    assert p.drops == 1          # lost at step 7 with the jaw still closed
+    released = grasped.copy()
+    released[7] = True           # held until the jaw opens at step 8: a release, not a drop
+    traj.flags["grasped"] = released
+    assert trajectory_proficiency(traj).drops == 0
+
+
+def test_a_drop_after_success_is_not_counted_and_env_drop_events_win():
+    jaw = -np.ones(6, np.float32)
+    grasped = np.array([1, 1, 1, 0, 0, 0], bool)
+    success = np.array([0, 1, 1, 1, 1, 1], bool)
+    assert proficiency(straight_line(6), success, jaw, grasped=grasped).drops == 0
+    assert proficiency(straight_line(6), np.zeros(6, bool), jaw, grasped=grasped).drops == 1
+    assert proficiency(straight_line(6), np.zeros(6, bool), jaw, grasped=grasped,
+                       drop=np.array([0, 1, 0, 0, 1, 1], bool)).drops == 2
+
+
+def test_collision_onsets_and_unrecorded_events_are_nan():
+    traj = make_traj(straight_line(8))
+    p = trajectory_proficiency(traj)
+    assert math.isnan(p.collisions) and math.isnan(p.failed_grasps) and math.isnan(p.drops)
+    traj.flags["collision"] = np.array([0, 1, 1, 0, 1, 0, 0, 1], bool)
+    assert trajectory_proficiency(traj).collisions == 3
+
+
+def test_idle_time_counts_only_long_still_stretches():
+    steps = np.r_[np.full(5, 0.01), np.zeros(6), np.full(3, 0.01), np.zeros(3), np.full(2, 0.01)]
+    x = np.concatenate([[0.0], np.cumsum(steps)])
+    path = np.stack([x, 0 * x, 0 * x + 0.7], axis=1)
+    # 6 still steps = 1.2 s ≥ 1 s counts; 3 still steps = 0.6 s does not.
+    assert idle_time_s(path) == pytest.approx(6 * CONTROL_PERIOD_S)
+
+
+def test_angular_economy_wraps_and_bimanual_arm_paths():
+    yaw = np.array([3.0, -3.0, -2.9])   # +0.283 rad across ±π, then +0.1
+    assert angular_economy_rad(yaw[:, None]) == pytest.approx(2 * np.pi - 6.0 + 0.1, abs=1e-9)
+    left, right = straight_line(5), straight_line(5, step_m=0.02)
+    p = trajectory_proficiency(make_traj(np.stack([left, right], axis=1)))
+    assert (p.path_length_arm1_cm, p.path_length_arm2_cm) == pytest.approx((5.0, 10.0), rel=1e-5)
+    assert math.isnan(trajectory_proficiency(make_traj(left)).path_length_arm2_cm)
+
+
+def test_estimates_over_seeds_with_bootstrap_interval():
+    e = estimate([0.5, 0.7, 0.9, float("nan")])
+    assert (e.n, e.mean, e.std) == (3, pytest.approx(0.7), pytest.approx(0.2))
+    assert 0.5 <= e.ci_low <= 0.7 <= e.ci_high <= 0.9
+    assert e.format(1, scale=100) == "70.0 ± 20.0"
+    assert estimate([]).format() == "–"
+    assert bootstrap_ci([1.0, 2.0, 3.0]) == bootstrap_ci([1.0, 2.0, 3.0])   # seeded
