@@ -1,0 +1,354 @@
+"""The demo-source study report (the paper's Table I protocol): learning curves and the Table I layout.
+
+``write_study_report(run_dirs, out)`` reads training runs (folders with ``metrics.jsonl`` and ``config.json``,
+found recursively under the paths given), groups them by demo source, and writes into ``out``:
+
+* ``learning_curves.png``: evaluation success per epoch, mean over seeds with a ±1 std band, one colour per
+  demo source (and steps to complete, economy of motion below it);
+* ``report.md`` and ``report.html`` (self-contained: figures embedded): the Table I layout (rows success /
+  steps to complete / economy of motion; columns the demo sources at two epochs), the paper's figures beside
+  ours, an optional demo-quality table, and what made the numbers (runs, seeds, commands, versions, commit).
+
+Success is the evaluation's final-step success (the paper's and DEX's convention); "steps to complete" and
+"economy of motion" are the evaluation means over successful episodes, as the training loop logs them.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import math
+import platform
+import subprocess
+from collections import defaultdict
+from dataclasses import dataclass
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from surrol_data.evaluation.metrics import Estimate, estimate
+from surrol_data.evaluation.report import Column, metrics_table_markdown
+
+SOURCES_ORDER = ("script", "novice", "expert")
+SOURCE_COLOURS = {"script": "#4c72b0", "novice": "#dd8452", "expert": "#55a868", "none": "#7f7f7f"}
+OTHER_COLOURS = ("#8172b3", "#c44e52", "#937860", "#da8bc3", "#8c8c8c")
+# The paper's Table I (NeedlePick, DDPG+BC+HER, 100 demos per source): mean ± std at 50 and 100 epochs.
+PAPER_TABLE1 = {
+    50: {"success_rate": {"expert": (89.7, 6.4), "novice": (66.3, 12.7), "script": (43.2, 21.9)},
+         "steps_to_complete": {"expert": (39.2, None), "novice": (59.5, None), "script": (101.8, None)},
+         "economy_of_motion_cm": {"expert": (12.2, None), "novice": (14.2, None), "script": (15.0, None)}},
+    100: {"success_rate": {"expert": (99.3, None), "novice": (86.7, None), "script": (93.2, None)},
+          "steps_to_complete": {"expert": (15.0, None), "novice": (21.4, None), "script": (24.0, None)},
+          "economy_of_motion_cm": {"expert": (11.6, None), "novice": (12.6, None), "script": (13.5, None)}},
+}
+TABLE_METRICS = (("success_rate", "Success rate (%)", 100.0, 1),
+                 ("steps_to_complete", "Steps to complete", 1.0, 1),
+                 ("economy_of_motion_cm", "Economy of motion (cm)", 1.0, 1))
+CURVES_FILE = "learning_curves.png"
+
+
+class StudyReportError(ValueError):
+    """What was wrong with the runs given to the report, and what to do."""
+
+
+@dataclass(frozen=True)
+class Run:
+    path: Path
+    task: str
+    algo: str
+    source: str
+    seed: int
+    rows: list[dict]
+    config: dict
+
+    def at_epoch(self, epoch: int) -> dict | None:
+        for row in self.rows:
+            if int(row["epoch"]) == epoch:
+                return row
+        return None
+
+    @property
+    def epochs(self) -> int:
+        return max((int(r["epoch"]) for r in self.rows), default=0)
+
+
+def _read_run(path: Path) -> Run:
+    rows = [json.loads(line) for line in (path / "metrics.jsonl").read_text().splitlines() if line.strip()]
+    config_path = path / "config.json"
+    if not config_path.is_file():
+        raise StudyReportError(f"{path}: metrics.jsonl without config.json; is it a complete training run folder?")
+    config = json.loads(config_path.read_text())
+    env_id = str(config.get("env_id", "?"))
+    task = env_id.split("/")[-1].rsplit("-v", 1)[0]
+    return Run(path=path, task=task, algo=str(config.get("algo_name", config.get("learner", "?"))),
+               source=demo_source(config.get("demos") or {}), seed=int(config.get("seed", 0)), rows=rows,
+               config=config)
+
+
+def demo_source(demos: dict) -> str:
+    """The demo source of a run from its demo spec: the skill it selected (expert, novice), script, or none."""
+    if demos.get("name"):
+        return str(demos["name"])
+    if not demos.get("path"):
+        return "none"
+    where = demos.get("where") or {}
+    if where.get("skill") in ("expert", "novice"):
+        return str(where["skill"])
+    if where.get("source") == "script" or where.get("skill") == "scripted":
+        return "script"
+    return Path(str(demos["path"])).name
+
+
+def discover_runs(paths: Sequence[str | Path]) -> list[Run]:
+    """Every run folder (one with ``metrics.jsonl``) at or below the given paths, sorted by source and seed."""
+    found: dict[Path, Run] = {}
+    for p in map(Path, paths):
+        if not p.exists():
+            raise StudyReportError(f"{p} does not exist; give run folders or folders that contain them (e.g. runs/)")
+        candidates = [p] if (p / "metrics.jsonl").is_file() else sorted(m.parent for m in p.rglob("metrics.jsonl"))
+        for c in candidates:
+            found.setdefault(c.resolve(), _read_run(c))
+    if not found:
+        raise StudyReportError(f"no training runs (folders with metrics.jsonl) under {[str(p) for p in paths]}; "
+                               "train first, e.g. `surrol-data train experiment=table1_quick`")
+    order = {s: i for i, s in enumerate(SOURCES_ORDER)}
+    return sorted(found.values(), key=lambda r: (order.get(r.source, len(order)), r.source, r.seed, str(r.path)))
+
+
+def by_source(runs: Sequence[Run]) -> dict[str, list[Run]]:
+    groups: dict[str, list[Run]] = defaultdict(list)
+    for run in runs:
+        groups[run.source].append(run)
+    return dict(groups)
+
+
+def report_epochs(runs: Sequence[Run], requested: Sequence[int] | None = None) -> tuple[int, ...]:
+    """The two epochs of the table: the paper's 50 and 100 when the runs are that long, else half and all."""
+    if requested:
+        return tuple(int(e) for e in requested)
+    last = min(r.epochs for r in runs)
+    return (50, 100) if last >= 100 else tuple(sorted({max(1, last // 2), last}))
+
+
+def table1_estimates(runs: Sequence[Run], epochs: Sequence[int]) -> dict[int, dict[str, dict[str, Estimate]]]:
+    """{epoch: {metric: {source: Estimate over seeds}}}; a seed contributes only where it has that epoch."""
+    out: dict[int, dict[str, dict[str, Estimate]]] = {}
+    for epoch in epochs:
+        out[epoch] = {}
+        for metric, *_ in TABLE_METRICS:
+            out[epoch][metric] = {}
+            for source, group in by_source(runs).items():
+                rows = [r.at_epoch(epoch) for r in group]
+                out[epoch][metric][source] = estimate([row.get(metric, math.nan) for row in rows if row])
+    return out
+
+
+def _paper_cell(epoch: int, metric: str, source: str, scale: float) -> str:
+    value = PAPER_TABLE1.get(epoch, {}).get(metric, {}).get(source)
+    if value is None:
+        return "–"
+    mean, std = value
+    return f"{mean:.1f}" if std is None else f"{mean:.1f} ± {std:.1f}"
+
+
+def table1_markdown(estimates: Mapping[int, Mapping[str, Mapping[str, Estimate]]], sources: Sequence[str]) -> str:
+    """Rows: metric × epoch; columns: ours and the paper's for each demo source."""
+    columns = [Column("metric", "Metric"), Column("epoch", "Epoch")]
+    for s in sources:
+        columns += [Column(f"ours_{s}", f"{s} (ours)"), Column(f"paper_{s}", f"{s} (paper)")]
+    rows = []
+    for metric, label, scale, digits in TABLE_METRICS:
+        for epoch, per_metric in estimates.items():
+            row = {"metric": label, "epoch": str(epoch)}
+            for s in sources:
+                est = per_metric[metric].get(s)
+                row[f"ours_{s}"] = est.format(digits, scale) if est else "–"
+                row[f"paper_{s}"] = _paper_cell(epoch, metric, s, scale)
+            rows.append(row)
+    return metrics_table_markdown(rows, columns)
+
+
+def plot_learning_curves(path: str | Path, runs: Sequence[Run], title: str | None = None) -> Path:
+    """Success, steps to complete and economy per epoch: mean over seeds with a ±1 std band per source."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
+
+    fig, axes = plt.subplots(3, 1, figsize=(7.5, 9.0), sharex=True)
+    for k, (source, group) in enumerate(by_source(runs).items()):
+        colour = SOURCE_COLOURS.get(source, OTHER_COLOURS[k % len(OTHER_COLOURS)])
+        epochs = sorted({int(r["epoch"]) for run in group for r in run.rows})
+        for ax, (metric, label, scale, _) in zip(axes, TABLE_METRICS):
+            values = np.full((len(group), len(epochs)), np.nan)
+            for i, run in enumerate(group):
+                for j, e in enumerate(epochs):
+                    row = run.at_epoch(e)
+                    v = row.get(metric) if row else None
+                    values[i, j] = np.nan if v is None else float(v) * scale
+            with np.errstate(invalid="ignore"), _quiet_nan_warnings():
+                mean = np.nanmean(values, axis=0)
+                std = np.nanstd(values, axis=0)
+            ax.plot(epochs, mean, color=colour, marker="o", markersize=3, label=f"{source} ({len(group)} seeds)")
+            ax.fill_between(epochs, mean - std, mean + std, color=colour, alpha=0.2, linewidth=0)
+            ax.set_ylabel(label)
+    axes[0].set_ylim(-2, 102)
+    axes[0].legend(loc="lower right")
+    axes[-1].set_xlabel("epoch")
+    axes[-1].xaxis.set_major_locator(MaxNLocator(integer=True))
+    for ax in axes:
+        ax.grid(alpha=0.3)
+    if title:
+        axes[0].set_title(title)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+class _quiet_nan_warnings:
+    """nanmean of an all-nan column (a metric no seed has at that epoch) is nan, as wanted: no warning."""
+
+    def __enter__(self):
+        import warnings
+
+        self._ctx = warnings.catch_warnings()
+        self._ctx.__enter__()
+        warnings.simplefilter("ignore", RuntimeWarning)
+
+    def __exit__(self, *exc):
+        return self._ctx.__exit__(*exc)
+
+
+def _versions() -> dict[str, str]:
+    out = {"python": platform.python_version()}
+    for pkg in ("surrol-data", "torch", "lerobot", "pybullet", "gymnasium", "numpy"):
+        try:
+            out[pkg] = version(pkg)
+        except PackageNotFoundError:
+            out[pkg] = "not installed"
+    return out
+
+
+def _git_commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=10,
+                              cwd=Path(__file__).resolve().parent).stdout.strip() or "unknown"
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def _provenance_markdown(runs: Sequence[Run], command: str | None) -> str:
+    lines = ["| source | seeds | epochs | run folders |", "|:---|---|---:|:---|"]
+    for source, group in by_source(runs).items():
+        seeds = ", ".join(str(r.seed) for r in group)
+        lines.append(f"| {source} | {seeds} | {min(r.epochs for r in group)} | "
+                     + "<br>".join(f"`{r.path}`" for r in group) + " |")
+    versions = ", ".join(f"{k} {v}" for k, v in _versions().items())
+    cmd = f"\n\nReport command: `{command}`" if command else ""
+    tasks = sorted({r.task for r in runs})
+    algos = sorted({r.algo for r in runs})
+    return ("\n".join(lines) + f"\n\nTask: {', '.join(tasks)}; algorithm: {', '.join(algos)}. Versions: {versions}; "
+            f"commit {_git_commit()}.{cmd}\n")
+
+
+def write_study_report(run_paths: Sequence[str | Path], out: str | Path, *, epochs: Sequence[int] | None = None,
+                       demo_table_markdown: str | None = None, notes: str | None = None,
+                       command: str | None = None, title: str = "Does who demonstrated matter?") -> dict[str, Path]:
+    """Write report.md, report.html and learning_curves.png into ``out``; returns their paths."""
+    runs = discover_runs(run_paths)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    at = report_epochs(runs, epochs)
+    sources = list(by_source(runs))
+    estimates = table1_estimates(runs, at)
+    curves = plot_learning_curves(out / CURVES_FILE, runs, title=f"{runs[0].task}: evaluation per epoch")
+    sections = [
+        f"# {title}\n",
+        "Policies trained on demonstrations of each source, evaluated every epoch on unseen seeds. "
+        f"Table I layout: ours (mean ± std over seeds) beside the paper's, at epochs {', '.join(map(str, at))}.\n",
+        "## Table I\n", table1_markdown(estimates, sources),
+        f"\n## Learning curves\n\n![learning curves]({CURVES_FILE})\n",
+    ]
+    if demo_table_markdown:
+        sections += ["\n## Demonstrations\n", demo_table_markdown]
+    if notes:
+        sections += ["\n## Notes\n", notes.strip() + "\n"]
+    sections += ["\n## What made these numbers\n", _provenance_markdown(runs, command)]
+    markdown = "\n".join(sections)
+    md_path = out / "report.md"
+    md_path.write_text(markdown)
+    html_path = out / "report.html"
+    html_path.write_text(markdown_to_html(markdown, out, title))
+    return {"markdown": md_path, "html": html_path, "curves": curves}
+
+
+# ------------------------------------------------------------------------------------------------ HTML
+_CSS = ("body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}"
+        "table{border-collapse:collapse;margin:1em 0}th,td{border:1px solid #ccc;padding:4px 8px}"
+        "th{background:#f2f2f2}td.num{text-align:right}img{max-width:100%}code{background:#f6f6f6}")
+
+
+def _inline(text: str, folder: Path) -> str:
+    """Escape, then the little inline markdown the report uses: `code`, <br>, ![alt](file.png)."""
+    import re
+
+    parts = re.split(r"(!\[[^\]]*\]\([^)]+\)|`[^`]*`|<br>)", text)
+    out = []
+    for part in parts:
+        image = re.fullmatch(r"!\[([^\]]*)\]\(([^)]+)\)", part)
+        if image:
+            data = base64.b64encode((folder / image.group(2)).read_bytes()).decode("ascii")
+            out.append(f'<img alt="{html.escape(image.group(1))}" src="data:image/png;base64,{data}">')
+        elif part.startswith("`") and part.endswith("`") and len(part) >= 2:
+            out.append(f"<code>{html.escape(part[1:-1])}</code>")
+        elif part == "<br>":
+            out.append("<br>")
+        else:
+            out.append(html.escape(part).replace("\\|", "|"))
+    return "".join(out)
+
+
+def markdown_to_html(markdown: str, folder: Path, title: str) -> str:
+    """The report's markdown (headings, paragraphs, pipe tables, images) as one self-contained HTML page."""
+    body: list[str] = []
+    lines = markdown.splitlines()
+    i = 0
+    while i < len(lines):
+        line = lines[i]
+        if line.startswith("#"):
+            level = len(line) - len(line.lstrip("#"))
+            body.append(f"<h{level}>{_inline(line[level:].strip(), folder)}</h{level}>")
+        elif line.startswith("|"):
+            block = []
+            while i < len(lines) and lines[i].startswith("|"):
+                block.append(lines[i])
+                i += 1
+            body.append(_table_html(block, folder))
+            continue
+        elif line.strip():
+            body.append(f"<p>{_inline(line, folder)}</p>")
+        i += 1
+    return (f"<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{html.escape(title)}</title>"
+            f"<style>{_CSS}</style></head><body>\n" + "\n".join(body) + "\n</body></html>\n")
+
+
+def _cells(row: str) -> list[str]:
+    import re
+
+    return [c.strip() for c in re.split(r"(?<!\\)\|", row.strip().strip("|"))]
+
+
+def _table_html(block: list[str], folder: Path) -> str:
+    head, rows = _cells(block[0]), [_cells(r) for r in block[2:]]
+    out = ["<table><thead><tr>" + "".join(f"<th>{_inline(h, folder)}</th>" for h in head) + "</tr></thead><tbody>"]
+    for row in rows:
+        out.append("<tr>" + "".join(f'<td class="num">{_inline(c, folder)}</td>' if i else f"<td>{_inline(c, folder)}</td>"
+                                    for i, c in enumerate(row)) + "</tr>")
+    out.append("</tbody></table>")
+    return "".join(out)
