@@ -123,6 +123,56 @@ def evaluate_cmd(task: str = typer.Option(..., help="Task name, e.g. NeedlePick.
     print_summary(console, {f"{policy} on {task}": result.summary})
 
 
+@app.command()
+def assess(dataset: Path = typer.Argument(..., help="Dataset folder."),
+           out: Optional[Path] = typer.Option(None, help="Folder for assessment.md, assessment.png and episodes.csv.")):
+    """Demo proficiency per operator and skill, against the expert benchmark (proficiency-based progression)."""
+    from rich.markdown import Markdown
+
+    from surrol_data.datasets.reader import DatasetError
+    from surrol_data.evaluation.assess import assess_dataset, assessment_markdown, write_assessment
+
+    try:
+        with console.status(f"scoring the episodes of {dataset} ..."):
+            result = assess_dataset(dataset)
+    except (DatasetError, ValueError, FileNotFoundError) as e:
+        _fail(str(e))
+    console.print(Markdown(assessment_markdown(result)))
+    if out is not None:
+        files = write_assessment(result, out)
+        console.print(f"wrote {', '.join(str(p) for p in files.values())}")
+
+
+@app.command()
+def report(runs: list[Path] = typer.Argument(..., help="Training run folders, or folders that contain them."),
+           out: Path = typer.Option(..., help="Folder for report.md, report.html and learning_curves.png."),
+           epochs: Optional[str] = typer.Option(None, help="The table's two epochs, e.g. '50,100' (default: the "
+                                                            "paper's 50 and 100 when the runs are that long)."),
+           demos: list[Path] = typer.Option([], help="Demo datasets to add a demo-quality table for (repeatable).")):
+    """The demo-source study report: Table I layout beside the paper's figures, learning curves, provenance."""
+    from surrol_data.datasets.reader import DatasetError
+    from surrol_data.evaluation.assess import ASSESS_COLUMNS, assess_dataset
+    from surrol_data.evaluation.report import metrics_table_markdown
+    from surrol_data.evaluation.study_report import StudyReportError, write_study_report
+
+    try:
+        at = [int(e) for e in epochs.split(",")] if epochs else None
+    except ValueError:
+        _fail(f"--epochs takes whole numbers separated by commas, e.g. 50,100; got {epochs!r}")
+    try:
+        demo_rows = []
+        for path in demos:
+            demo_rows += [{**row, "group": f"{path.name}: {row['group']}"}
+                          for row in assess_dataset(path).skills.to_dict("records")]
+        with console.status("writing the report ..."):
+            files = write_study_report(runs, out, epochs=at, command=_this_command(),
+                                       demo_table_markdown=metrics_table_markdown(demo_rows, ASSESS_COLUMNS)
+                                       if demo_rows else None)
+    except (StudyReportError, DatasetError, ValueError, FileNotFoundError) as e:
+        _fail(str(e))
+    console.print(f"wrote {files['markdown']}, {files['html']} and {files['curves']}")
+
+
 @app.command("train-bc")
 def train_bc_cmd(dataset: Path = typer.Argument(..., help="Dataset folder with demos."),
                  out: Path = typer.Option(..., help="Checkpoint file to write (.pt)."),

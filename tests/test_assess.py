@@ -59,3 +59,18 @@ def test_benchmark_rules_on_hand_made_rows():
                                         ([True, False, True], 0), ([], 0)])
 def test_proficiency_needs_two_consecutive_trials(flags, at):
     assert proficient_at(flags) == at
+
+
+def test_assess_and_report_commands(mixed_dataset, tmp_path):
+    from typer.testing import CliRunner
+
+    from surrol_data.cli import app
+
+    runner = CliRunner()
+    result = runner.invoke(app, ["assess", str(mixed_dataset), "--out", str(tmp_path / "a")])
+    assert result.exit_code == 0, result.output
+    assert "Expert benchmark" in result.output and (tmp_path / "a" / "assessment.png").is_file()
+    missing = runner.invoke(app, ["report", str(tmp_path / "no_runs_here"), "--out", str(tmp_path / "r")])
+    assert missing.exit_code == 2 and "does not exist" in missing.output
+    bad = runner.invoke(app, ["report", str(tmp_path), "--out", str(tmp_path / "r"), "--epochs", "fifty"])
+    assert bad.exit_code == 2 and "--epochs takes whole numbers" in bad.output
