@@ -129,3 +129,12 @@ def test_dataset_card_front_matter(dataset):
     assert "| haptic | touch | 3 |" in card and "| novice | sim-novice-0 | yes | 1 |" in card
     assert "## Proficiency" in card and "pytest make_dataset" in card  # the command line that made it
     assert len(LABELS) == len(trajs)
+
+
+def test_card_keeps_only_relative_paths():
+    from surrol_data.datasets.card import relative_command
+
+    assert relative_command("surrol-data collect --out /home/me/data/NP_script --episodes 5") == \
+        "surrol-data collect --out NP_script --episodes 5"
+    assert relative_command("surrol-data merge --out=/abs/merged a b") == "surrol-data merge --out=merged a b"
+    assert relative_command("unbalanced 'quote") == "unbalanced 'quote"

@@ -162,7 +162,11 @@ def test_sidecar_and_card(written):
     assert side["schema_version"] == 1 and side["env_id"] == "SurRoL/NeedlePick-v0" and side["fps"] == 5
     assert side["sessions"][-1]["episodes"] == 5 and side["checkpoint"]["episodes"] == 5
     card = (root / "README.md").read_text()
-    assert card.startswith("---\ntask_categories:\n- robotics\n")
+    from huggingface_hub import DatasetCard
+
+    data = DatasetCard(card).data        # huggingface_hub parses the front matter
+    assert data.task_categories == ["robotics"] and "LeRobot" in data.tags and data.size_categories == ["n<1K"]
+    assert str(root) not in card and str(root.parent) not in card   # no path of the recording machine
     assert "data_files: data/*/*.parquet" in card and "NeedlePick" in card
     assert "| script | none | 3 |" in card and "| haptic | touch | 2 |" in card
 

@@ -2,8 +2,9 @@
 
 Validates first (a dataset that fails ``surrol-data validate`` is not pushed), refreshes the dataset card,
 creates the dataset repo if needed, uploads the folder (minus the PNG staging area ``images/``, repair
-backups and partial files) and tags the LeRobot codebase version (``v3.0``), which ``LeRobotDataset`` needs
-to load a dataset from the Hub. ``--dry-run`` lists what would be uploaded, selected with huggingface_hub's
+backups, partial files and locks) and points the LeRobot codebase-version tag (``v3.0``) at the new commit:
+``LeRobotDataset(repo_id)`` loads the revision that tag names, so a tag left on the first push would hide every
+later one. ``--dry-run`` lists what would be uploaded, selected with huggingface_hub's
 own pattern filter, without any network access.
 
 The toolkit sets ``HF_HUB_OFFLINE=1`` so nothing reaches the Hub by accident; a real push needs
@@ -16,7 +17,8 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-IGNORE_PATTERNS = ["images/*", ".surrol_data_repair/*", "*.tmp", "*.partial", ".cache/*"]
+# What stays on the recording machine: lerobot's PNG staging area, repair backups, partial files, locks, caches.
+IGNORE_PATTERNS = ["images/*", ".surrol_data_repair/*", "*.tmp", "*.partial", "*.lock", ".cache/*"]
 
 
 @dataclass
@@ -65,12 +67,19 @@ def push_dataset(root: str | Path, repo_id: str, *, private: bool = False, dry_r
     if constants.HF_HUB_OFFLINE:
         raise RuntimeError("the Hub is disabled (HF_HUB_OFFLINE=1, set by surrol_data to keep datasets local); "
                            "run the push with HF_HUB_OFFLINE=0 in the environment")
-    write_dataset_card(root)
+    write_dataset_card(root, repo_id=repo_id)
     plan = plan_push(root, repo_id)
     api = HfApi(token=os.environ.get("HF_TOKEN"))
     api.create_repo(repo_id, repo_type="dataset", private=private, exist_ok=True)
-    api.upload_folder(folder_path=str(root), repo_id=repo_id, repo_type="dataset",
-                      ignore_patterns=IGNORE_PATTERNS, commit_message="surrol_data: push dataset")
+    commit = api.upload_folder(folder_path=str(root), repo_id=repo_id, repo_type="dataset",
+                               ignore_patterns=IGNORE_PATTERNS, commit_message="surrol_data: push dataset")
     if plan.revision_tag:
-        api.create_tag(repo_id, tag=plan.revision_tag, repo_type="dataset", exist_ok=True)
+        move_tag(api, repo_id, plan.revision_tag, commit.oid)
     return plan
+
+
+def move_tag(api, repo_id: str, tag: str, revision: str) -> None:
+    """Point ``tag`` of the dataset repo at ``revision``, replacing the tag if an earlier push made it."""
+    if any(ref.name == tag for ref in api.list_repo_refs(repo_id, repo_type="dataset").tags):
+        api.delete_tag(repo_id, tag=tag, repo_type="dataset")
+    api.create_tag(repo_id, tag=tag, revision=revision, repo_type="dataset")
