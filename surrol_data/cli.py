@@ -216,12 +216,18 @@ def train(ctx: typer.Context):
 
 @app.command()
 def view(dataset: Path = typer.Argument(..., help="Dataset folder."),
-         out: Path = typer.Option(..., help="Rerun recording to write (.rrd)."),
-         episodes: str = typer.Option("0", help="Comma-separated episode indices to show side by side.")):
-    """Write a Rerun recording of dataset episodes (tool paths, goal, actions, jaw, clutch, provenance)."""
+         out: Optional[Path] = typer.Option(None, help="Rerun recording to write (.rrd)."),
+         episodes: str = typer.Option("0", help="Comma-separated episode indices to show side by side."),
+         web: bool = typer.Option(False, help="Serve the recording in Rerun's web viewer (until Ctrl-C)."),
+         web_port: int = typer.Option(9090, help="Port of the web viewer with --web."),
+         open_browser: bool = typer.Option(True, help="With --web: open the viewer in the default browser.")):
+    """Rerun view of dataset episodes: instruments, tool paths, objects, goal, actions, jaw, clutch, provenance."""
+    from surrol_data.datasets.info import read_sidecar
     from surrol_data.datasets.reader import DatasetError, DatasetReader
-    from surrol_data.viz.rerun_log import save_rrd
+    from surrol_data.viz.instrument import psm_rcm_positions
 
+    if out is None and not web:
+        _fail("say where the recording goes: --out FILE.rrd, and/or --web to serve it in Rerun's web viewer")
     try:
         reader = DatasetReader(dataset)
         wanted = [int(e) for e in episodes.split(",") if e.strip()]
@@ -236,7 +242,33 @@ def view(dataset: Path = typer.Argument(..., help="Dataset folder."),
         row = table.loc[ep].to_dict()
         label = f"ep{ep} {row.get('source', '')} {row.get('skill', '')}".strip()
         items.append((label, reader.trajectory(ep), {k: row[k] for k in row if not str(k).startswith("stats")}))
-    console.print(f"wrote {save_rrd(out, items)}; open it with: rerun {out}")
+    rcms = psm_rcm_positions(read_sidecar(dataset).get("env_id", ""))
+    if out is not None:
+        from surrol_data.viz.rerun_log import save_rrd
+
+        console.print(f"wrote {save_rrd(out, items, rcm_positions=rcms)}; open it with: rerun {out}")
+    if web:
+        _serve_web(items, rcms, web_port, open_browser)
+
+
+def _serve_web(items, rcms, web_port: int, open_browser: bool) -> None:
+    """Serve the episodes from this process: a gRPC server holds the recording, the web viewer reads it."""
+    import time
+
+    import rerun as rr
+
+    from surrol_data.viz.rerun_log import APPLICATION_ID, log_trajectories
+
+    rec = rr.RecordingStream(APPLICATION_ID)
+    url = rec.serve_grpc()
+    log_trajectories(rec, items, rcm_positions=rcms)
+    rr.serve_web_viewer(web_port=web_port, open_browser=open_browser, connect_to=url)
+    console.print(f"Rerun web viewer at http://localhost:{web_port} (data from {url}); Ctrl-C stops it")
+    try:
+        while True:
+            time.sleep(1.0)
+    except KeyboardInterrupt:
+        console.print("stopped the web viewer")
 
 
 @app.command()

@@ -171,3 +171,62 @@ def test_log_into_caller_stream_with_jpeg(tmp_path, items):
     trail = next(ch.to_record_batch() for ch in chunks
                  if ch.entity_path == "/world/oracle/arm0/trail" and not ch.is_static)
     assert max(len(s[0]) for s in trail.column("LineStrips3D:strips").to_pylist()) == 4
+
+
+# ------------------------------------------------------------------ instruments drawn from recorded states
+def test_instrument_matches_the_simulated_arm_and_opens_its_jaws(tmp_path):
+    """Strips drawn from a recorded NeedlePick episode sit where PyBullet had the wrist, blades spread by the jaw."""
+    import gymnasium as gym
+
+    import surrol_data.envs  # noqa: F401
+    from surrol_data.evaluation.rollout import rollout
+    from surrol_data.viz.instrument import episode_instrument_strips, psm_rcm_positions
+
+    env = gym.make("SurRoL/NeedlePick-v0")
+    traj = rollout(env, "oracle", 3)
+    rcms = psm_rcm_positions("SurRoL/NeedlePick-v0")
+    assert len(rcms) == 1 and len(psm_rcm_positions("SurRoL/BiPegTransfer-v0")) == 2
+    assert psm_rcm_positions("SurRoL/ECMReach-v0") is None
+    last = episode_instrument_strips(traj.observation[-1:], 0, rcms[0])[0]
+    wrist_pitch, _ = env.unwrapped.psm.link_pose_world(4)
+    wrist_yaw, _ = env.unwrapped.psm.link_pose_world(5)
+    np.testing.assert_allclose(last[0][1], wrist_pitch, atol=1e-6)
+    np.testing.assert_allclose(last[1][1], wrist_yaw, atol=1e-6)
+    spread = [np.linalg.norm(s[2][1] - s[3][1]) for s in episode_instrument_strips(traj.observation, 0, rcms[0])]
+    jaw = traj.jaw_angle[:, 0]
+    assert spread[int(np.argmax(jaw))] > spread[int(np.argmin(jaw))] + 0.002   # open blades ≥ 2 mm further apart
+    env.close()
+    path = save_rrd(tmp_path / "inst.rrd", [("oracle", traj, {"source": "script"})], rcm_positions=rcms)
+    rows = [ch.to_record_batch() for ch in _chunks(path) if ch.entity_path == "/world/oracle/arm0/instrument"
+            and not ch.is_static]
+    assert sum(len(rb.column("LineStrips3D:strips").to_pylist()) for rb in rows) == len(traj) + 1
+
+
+def test_view_serves_the_web_viewer(tmp_path):
+    """`view --web` answers on its HTTP port with Rerun's web viewer page."""
+    import socket
+    import time
+    import urllib.request
+
+    from surrol_data.collect.script_source import collect_script
+
+    collect_script("NeedleReach", 1, tmp_path / "ds", progress=False)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.Popen([sys.executable, "-m", "surrol_data.cli", "view", str(tmp_path / "ds"), "--web",
+                             "--web-port", str(port), "--no-open-browser"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            env={**os.environ, "RERUN_ANALYTICS": "off"})
+    try:
+        page = ""
+        for _ in range(120):
+            try:
+                page = urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=2).read().decode()
+                break
+            except OSError:
+                time.sleep(0.5)
+        assert "<html" in page.lower() and "rerun" in page.lower()
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)

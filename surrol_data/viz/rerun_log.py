@@ -6,6 +6,8 @@ Entity layout, one subtree per episode label ``<L>`` (labels are made path-safe,
     world/<L>/arm<i>/path          full tool-tip path (static)
     world/<L>/arm<i>/trail         tool-tip path up to the current step (grows over time)
     world/<L>/arm<i>/tip           current tool-tip point
+    world/<L>/arm<i>/instrument    the PSM instrument: shaft through the RCM, wrist, two jaw blades at the
+                                   recorded opening (when the arms' RCM positions are given)
     world/<L>/object               object position (tasks with an object)
     world/<L>/goal                 goal marker(s)
     plots/<L>/action               action channels dx, dy, dz, dyaw, jaw (per arm)
@@ -70,7 +72,8 @@ def log_trajectories(rec_or_path: rr.RecordingStream | str | Path, items: Sequen
                      trail_length: int | None = None,
                      jpeg_quality: int | None = None,
                      send_blueprint: bool = True,
-                     recording_name: str | None = None) -> rr.RecordingStream | Path:
+                     recording_name: str | None = None,
+                     rcm_positions: Sequence[np.ndarray] | None = None) -> rr.RecordingStream | Path:
     """Log episodes ``(label, trajectory, provenance)`` into one recording, one entity subtree per label.
 
     ``rec_or_path``: a :class:`rerun.RecordingStream` whose sinks the caller owns (returned as is), or
@@ -81,10 +84,13 @@ def log_trajectories(rec_or_path: rr.RecordingStream | str | Path, items: Sequen
     ``trail_length``: number of past tip positions in the growing trail; ``None`` keeps the whole history
     (cost grows as T², fine for episodes of a few hundred steps).
     ``jpeg_quality``: JPEG-compress camera frames (1..100) instead of logging raw RGB.
+    ``rcm_positions``: the remote centre of motion of each PSM arm (world metres, see
+    :func:`surrol_data.viz.instrument.psm_rcm_positions`); with them each arm's instrument is drawn.
     """
     if isinstance(rec_or_path, (str, Path)):
         return save_rrd(rec_or_path, items, object_position=object_position, trail_length=trail_length,
-                        jpeg_quality=jpeg_quality, send_blueprint=send_blueprint, recording_name=recording_name)
+                        jpeg_quality=jpeg_quality, send_blueprint=send_blueprint, recording_name=recording_name,
+                        rcm_positions=rcm_positions)
     rec = rec_or_path
     names = _check_items(items)
     if recording_name:
@@ -92,7 +98,8 @@ def log_trajectories(rec_or_path: rr.RecordingStream | str | Path, items: Sequen
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     for k, (name, (label, traj, provenance)) in enumerate(zip(names, items)):
         _log_episode(rec, name, label, traj, dict(provenance), _PALETTE[k % len(_PALETTE)],
-                     object_position=object_position, trail_length=trail_length, jpeg_quality=jpeg_quality)
+                     object_position=object_position, trail_length=trail_length, jpeg_quality=jpeg_quality,
+                     rcm_positions=rcm_positions)
     if send_blueprint:
         rec.send_blueprint(make_blueprint(items))
     return rec
@@ -179,7 +186,8 @@ def _shade(color: tuple[int, int, int], arm: int) -> tuple[int, int, int]:
 
 def _log_episode(rec: rr.RecordingStream, name: str, label: str, traj: Trajectory, provenance: dict,
                  color: tuple[int, int, int], *, object_position: slice | None,
-                 trail_length: int | None, jpeg_quality: int | None) -> None:
+                 trail_length: int | None, jpeg_quality: int | None,
+                 rcm_positions: Sequence[np.ndarray] | None = None) -> None:
     T = len(traj)
     states = _timeline(np.arange(T + 1))       # reset state + one per action
     actions = _timeline(np.arange(T))          # a_t at step t
@@ -200,6 +208,8 @@ def _log_episode(rec: rr.RecordingStream, name: str, label: str, traj: Trajector
                                                        labels=[f"{label} arm{arm}"]), static=True)
         rec.send_columns(f"{base}/tip", indexes=states,
                          columns=rr.Points3D.columns(positions=path).partition([1] * (T + 1)))
+        if rcm_positions is not None and arm < len(rcm_positions):
+            _log_instrument(rec, base, traj.observation, arm, rcm_positions[arm], c, states)
 
     obs = np.asarray(traj.observation, np.float64)
     if object_position is not None and obs.shape[1] >= (object_position.stop or 0):
@@ -249,6 +259,24 @@ def _log_episode(rec: rr.RecordingStream, name: str, label: str, traj: Trajector
     rec.send_property(label, rr.AnyValues(**_flatten({**provenance, "outcome": outcome})))
     rec.log(f"provenance/{name}", rr.TextDocument(_provenance_markdown(label, provenance, outcome),
                                                  media_type=rr.MediaType.MARKDOWN), static=True)
+
+
+_INSTRUMENT_GREY = (150, 150, 160)
+
+
+def _log_instrument(rec: rr.RecordingStream, base: str, observation: np.ndarray, arm: int, rcm: np.ndarray,
+                    colour: tuple[int, int, int], states: list[rr.TimeColumn]) -> None:
+    """Shaft and wrist in steel grey, the blades in the label's colour, four strips per step."""
+    from surrol_data.viz.instrument import episode_instrument_strips
+
+    per_step = episode_instrument_strips(observation, arm, rcm)
+    rec.log(f"{base}/rcm", rr.Points3D([rcm], colors=[_INSTRUMENT_GREY], radii=[0.0012]), static=True)
+    rec.log(f"{base}/instrument", rr.LineStrips3D.from_fields(
+        colors=[_INSTRUMENT_GREY, _INSTRUMENT_GREY, colour, colour], radii=[0.0010, 0.0008, 0.0004, 0.0004]),
+        static=True)
+    rec.send_columns(f"{base}/instrument", indexes=states,
+                     columns=rr.LineStrips3D.columns(strips=[s for step in per_step for s in step])
+                     .partition([4] * len(per_step)))
 
 
 def _action_names(act_dim: int, n_arms: int) -> list[str]:
