@@ -116,6 +116,34 @@ def _as_2d(values: np.ndarray, dim: int) -> np.ndarray:
     return values.reshape(len(values), dim)
 
 
+def trajectory_from_table(table: pa.Table, features: dict) -> Trajectory:
+    """The :class:`Trajectory` of one episode's frame rows (in frame order), ``features`` from info.json."""
+    arrays = {name: column_to_numpy(table.column(name)) for name in table.column_names}
+
+    def dim(key: str) -> int:
+        return int(np.prod(features[key]["shape"]))
+
+    n_arms = dim("complementary_info.jaw_angle")
+
+    def with_last(key: str, next_key: str) -> np.ndarray:
+        now, nxt = _as_2d(arrays[key], dim(key)), _as_2d(arrays[next_key], dim(key))
+        return np.concatenate([now, nxt[-1:]], axis=0).astype(np.float32)
+
+    tip = with_last("complementary_info.tip_position", "complementary_info.next_tip_position")
+    return Trajectory(
+        observation=with_last("observation.state", "next.observation.state"),
+        achieved_goal=with_last("observation.achieved_goal", "next.observation.achieved_goal"),
+        desired_goal=with_last("observation.desired_goal", "next.observation.desired_goal"),
+        action=_as_2d(arrays["action"], dim("action")).astype(np.float32),
+        reward=arrays["next.reward"].reshape(-1).astype(np.float32),
+        success=arrays["next.success"].reshape(-1).astype(bool),
+        terminated=arrays["next.done"].reshape(-1).astype(bool),
+        tip_position=tip.reshape(len(tip), n_arms, 3),
+        jaw_angle=with_last("complementary_info.jaw_angle", "complementary_info.next_jaw_angle"),
+        flags={f: arrays[f"complementary_info.{f}"].reshape(-1).astype(bool) for f in DEVICE_FLAGS},
+    )
+
+
 class DatasetReader:
     """Episodes metadata, trajectories and transitions of a dataset as numpy, without lerobot.
 
@@ -280,26 +308,7 @@ class DatasetReader:
         return pa.concat_tables(tables).sort_by("index")
 
     def _trajectory_from(self, table: pa.Table) -> Trajectory:
-        arrays = {name: column_to_numpy(table.column(name)) for name in table.column_names}
-        n_arms = self._dim("complementary_info.jaw_angle")
-
-        def with_last(key: str, next_key: str) -> np.ndarray:
-            now, nxt = _as_2d(arrays[key], self._dim(key)), _as_2d(arrays[next_key], self._dim(key))
-            return np.concatenate([now, nxt[-1:]], axis=0).astype(np.float32)
-
-        tip = with_last("complementary_info.tip_position", "complementary_info.next_tip_position")
-        return Trajectory(
-            observation=with_last("observation.state", "next.observation.state"),
-            achieved_goal=with_last("observation.achieved_goal", "next.observation.achieved_goal"),
-            desired_goal=with_last("observation.desired_goal", "next.observation.desired_goal"),
-            action=_as_2d(arrays["action"], self._dim("action")).astype(np.float32),
-            reward=arrays["next.reward"].reshape(-1).astype(np.float32),
-            success=arrays["next.success"].reshape(-1).astype(bool),
-            terminated=arrays["next.done"].reshape(-1).astype(bool),
-            tip_position=tip.reshape(len(tip), n_arms, 3),
-            jaw_angle=with_last("complementary_info.jaw_angle", "complementary_info.next_jaw_angle"),
-            flags={f: arrays[f"complementary_info.{f}"].reshape(-1).astype(bool) for f in DEVICE_FLAGS},
-        )
+        return trajectory_from_table(table, self.features)
 
     def trajectory(self, ep: int) -> Trajectory:
         """Episode ``ep`` as a :class:`Trajectory` (T+1 observations, the last one included; no images)."""
