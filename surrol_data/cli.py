@@ -55,7 +55,8 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
             task: str = typer.Option(..., help="Task name, e.g. NeedlePick (see `surrol-data tasks`)."),
             episodes: int = typer.Option(..., min=1, help="Episodes to record (kept ones)."),
             out: Path = typer.Option(..., help="Dataset folder (must not exist unless --append)."),
-            seed: int = typer.Option(0, help="Seed of the first attempt; attempt i uses seed + i."),
+            seed: Optional[int] = typer.Option(None, help="Seed of the first attempt; attempt i uses seed + i "
+                                               "(default 0; with --append, one past the dataset's last seed)."),
             max_steps: Optional[int] = typer.Option(None, min=1, help="Episode horizon (default: the task's)."),
             keep_failures: bool = typer.Option(False, help="Also record episodes that never succeeded."),
             append: bool = typer.Option(False, help="Add episodes to an existing dataset."),
