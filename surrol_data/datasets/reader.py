@@ -84,6 +84,9 @@ def load_info(root: str | Path) -> dict:
     except json.JSONDecodeError as e:
         raise DatasetError(f"{path} is not valid JSON ({e}); the recording was probably killed while writing it: "
                            "run surrol_data.collect.recorder.repair(root)") from None
+    if not isinstance(info, dict):
+        raise DatasetError(f"{path} holds a JSON {type(info).__name__}, not LeRobot's info object; restore it or "
+                           "run `surrol-data repair` (it rewrites info.json from the recorder's saved copy)")
     version = str(info.get("codebase_version", ""))
     if not version.startswith("v3"):
         raise DatasetError(f"{root} is a LeRobot dataset of codebase_version {version!r}; expected v3.x "

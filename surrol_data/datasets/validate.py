@@ -122,10 +122,16 @@ def _validate(root: Path, check_reward: bool, check_lerobot: bool, check_videos:
     schema_problems = _check_schema(info)
     if schema_problems:
         return problems + schema_problems
-    meta_full = pa.concat_tables([pq.read_table(p) for p in parquet_files(root, EPISODES_DIR)],
-                                 promote_options="default").sort_by("episode_index")
+    meta_tables = []
+    for path in parquet_files(root, EPISODES_DIR):
+        table = pq.read_table(path)
+        meta_tables.append(table.append_column("__meta_file", pa.array([str(path.relative_to(root))] * table.num_rows)))
+    meta_full = pa.concat_tables(meta_tables, promote_options="default").sort_by("episode_index")
     meta = meta_full.select([n for n in meta_full.column_names if not n.startswith("stats/")])
     problems += _check_provenance(meta)
+    column_problems = _check_columns(root, info)
+    if column_problems:
+        return problems + column_problems
     data = _read_data(root, info)
     problems += _check_tasks(root, info, meta, data)
     count_problems = _check_counts(info, meta, data)
@@ -229,6 +235,29 @@ def _read_data(root: Path, info: dict) -> pa.Table:
     return pa.concat_tables(tables, promote_options="default").sort_by("index")
 
 
+def _check_columns(root: Path, info: dict) -> list[Problem]:
+    """Every data file stores each feature with the width info.json declares (and has every feature)."""
+    problems = []
+    for path in parquet_files(root, DATA_DIR):
+        schema = pq.read_schema(path)
+        for name, ft in info["features"].items():
+            if ft["dtype"] in ("video", "string"):
+                continue
+            if name not in schema.names:
+                problems.append(Problem("schema", f"{path.relative_to(root)} column {name}",
+                                        "missing from the data file though info.json declares it; restore the file "
+                                        f"or {REPAIR_HINT}"))
+                continue
+            typ = schema.field(name).type
+            width = typ.list_size if pa.types.is_fixed_size_list(typ) else 1
+            declared = int(np.prod(ft["shape"])) if ft["dtype"] != "image" else width
+            if width != declared:
+                problems.append(Problem("schema", f"meta/info.json features.{name}.shape",
+                                        f"declares {list(ft['shape'])} but {path.relative_to(root)} stores {width} "
+                                        "values per frame; info.json was edited: restore the shape"))
+    return problems
+
+
 def _unreadable(path: Path) -> str:
     """Why a parquet file cannot be read whole ("" if it can)."""
     try:
@@ -321,6 +350,15 @@ def _check_locations(root: Path, info: dict, meta: pa.Table, data: pa.Table) -> 
             if len(bad):
                 problems.append(Problem("counts", f"meta/episodes {name}", f"wrong for episode(s) {_listed(bad)}; "
                                                                            f"LeRobot would read other frames: {REPAIR_HINT}"))
+    if {"meta/episodes/chunk_index", "meta/episodes/file_index"} <= set(meta.column_names):
+        said = [EPISODES_DIR + f"/chunk-{int(c):03d}/file-{int(f):03d}.parquet" for c, f in zip(
+            column_to_numpy(meta.column("meta/episodes/chunk_index")),
+            column_to_numpy(meta.column("meta/episodes/file_index")), strict=True)]
+        actual = meta.column("__meta_file").to_pylist()
+        bad = [f"{ep} (says {s_}, is in {a})" for ep, s_, a in zip(episodes, said, actual, strict=True) if s_ != a]
+        if bad:
+            problems.append(Problem("counts", "meta/episodes meta/episodes/file_index", "episode(s) " + _listed(bad)
+                                    + f": metadata rows are not in the file they name (swapped files?); {REPAIR_HINT}"))
     data_file = column_to_numpy(data.column("__file")).astype(np.int64)
     first_row = starts
     wrong = []
