@@ -27,8 +27,13 @@ class Source(str, Enum):
 
 
 def _fail(message: str) -> None:
-    console.print(f"[bold red]error:[/] {message}")
+    console.print(f"[bold red]error:[/] {message}", highlight=False)
     raise typer.Exit(code=2)
+
+
+def _note(message: str) -> None:
+    """Something the user should know that is not an error (e.g. an automatic repair)."""
+    Console(stderr=True).print(f"[yellow]note:[/] {message}", highlight=False)
 
 
 @app.command()
@@ -50,7 +55,8 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
             task: str = typer.Option(..., help="Task name, e.g. NeedlePick (see `surrol-data tasks`)."),
             episodes: int = typer.Option(..., min=1, help="Episodes to record (kept ones)."),
             out: Path = typer.Option(..., help="Dataset folder (must not exist unless --append)."),
-            seed: int = typer.Option(0, help="Seed of the first attempt; attempt i uses seed + i."),
+            seed: Optional[int] = typer.Option(None, help="Seed of the first attempt; attempt i uses seed + i "
+                                               "(default 0; with --append, one past the dataset's last seed)."),
             max_steps: Optional[int] = typer.Option(None, min=1, help="Episode horizon (default: the task's)."),
             keep_failures: bool = typer.Option(False, help="Also record episodes that never succeeded."),
             append: bool = typer.Option(False, help="Add episodes to an existing dataset."),
@@ -96,10 +102,12 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
 @app.command()
 def info(dataset: Path = typer.Argument(..., help="Dataset folder.")):
     """Summarise a dataset: counts, features and a provenance breakdown."""
+    from surrol_data.datasets.guard import require_valid
     from surrol_data.datasets.info import render_info
     from surrol_data.datasets.reader import DatasetError
 
     try:
+        require_valid(dataset, _note)
         console.print(render_info(dataset))
     except DatasetError as e:
         _fail(str(e))
@@ -185,7 +193,10 @@ def train_bc_cmd(dataset: Path = typer.Argument(..., help="Dataset folder with d
     from surrol_data.algos.bc import BCConfig, demo_arrays, train_bc
     from surrol_data.datasets.reader import DatasetError, DatasetReader
 
+    from surrol_data.datasets.guard import require_valid
+
     try:
+        require_valid(dataset, _note)
         reader = DatasetReader(dataset)
     except DatasetError as e:
         _fail(str(e))
@@ -226,9 +237,12 @@ def view(dataset: Path = typer.Argument(..., help="Dataset folder."),
     from surrol_data.datasets.reader import DatasetError, DatasetReader
     from surrol_data.viz.instrument import psm_rcm_positions
 
+    from surrol_data.datasets.guard import require_valid
+
     if out is None and not web:
         _fail("say where the recording goes: --out FILE.rrd, and/or --web to serve it in Rerun's web viewer")
     try:
+        require_valid(dataset, _note)
         reader = DatasetReader(dataset)
         wanted = [int(e) for e in episodes.split(",") if e.strip()]
     except (DatasetError, ValueError) as e:
@@ -325,14 +339,30 @@ def validate(dataset: Path = typer.Argument(..., help="Dataset folder."),
 
 
 @app.command()
+def repair(dataset: Path = typer.Argument(..., help="Dataset folder left by a killed recording, or damaged.")):
+    """Keep every intact episode of a killed or damaged dataset; say what was dropped and why (files moved aside)."""
+    from surrol_data.collect.repair import repair as repair_dataset
+    from surrol_data.datasets.reader import DatasetError
+
+    try:
+        report = repair_dataset(dataset)
+    except DatasetError as e:
+        _fail(str(e))
+    for line in report.lines():
+        console.print(line, highlight=False)
+
+
+@app.command()
 def merge(out: Path = typer.Argument(..., help="New dataset folder."),
-          datasets: list[Path] = typer.Argument(..., help="Input dataset folders (same task and features).")):
-    """Merge datasets into a new one (episodes renumbered; provenance kept)."""
+          datasets: list[Path] = typer.Argument(..., help="Input dataset folders (same task and features)."),
+          drop_duplicates: bool = typer.Option(False, help="Keep one copy of episodes with equal content instead "
+                                                           "of refusing the merge.")):
+    """Merge datasets into a new one (episodes renumbered; provenance kept; duplicate episodes refused)."""
     from surrol_data.datasets.merge import merge_datasets
     from surrol_data.datasets.reader import DatasetError
 
     try:
-        merge_datasets(out, datasets, command=_this_command())
+        merge_datasets(out, datasets, command=_this_command(), drop_duplicates=drop_duplicates)
     except (DatasetError, ValueError, FileExistsError) as e:
         _fail(str(e))
     console.print(f"merged {len(datasets)} dataset(s) into {out}")

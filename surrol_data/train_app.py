@@ -14,8 +14,11 @@ at first.
 
 from __future__ import annotations
 
+import json
 import os
 import sys
+import tempfile
+import traceback
 from pathlib import Path
 
 import hydra
@@ -59,28 +62,105 @@ def to_train_config(cfg: DictConfig) -> TrainConfig:
         schedule=Schedule(**schedule),
         seed=int(cfg.seed),
         resume=bool(cfg.resume),
+        overwrite=bool(cfg.get("overwrite", False)),
         progress=bool(cfg.progress),
         tensorboard=bool(cfg.tensorboard),
     )
 
 
+SWEEP_REPORT_VAR = "SURROL_DATA_SWEEP_REPORT"
+
+
+def _in_sweep() -> bool:
+    from hydra.core.hydra_config import HydraConfig
+    from hydra.types import RunMode
+
+    try:
+        return HydraConfig.get().mode == RunMode.MULTIRUN
+    except ValueError:
+        return False
+
+
+def _job_label() -> str:
+    from hydra.core.hydra_config import HydraConfig
+
+    try:
+        return " ".join(HydraConfig.get().overrides.task) or "(defaults)"
+    except ValueError:
+        return ""
+
+
+def _report_job(status: str, detail: str, run_dir: str) -> None:
+    path = os.environ.get(SWEEP_REPORT_VAR)
+    if not path:
+        return
+    line = json.dumps({"job": _job_label(), "status": status, "detail": detail, "run_dir": run_dir})
+    with open(path, "a") as f:  # one short O_APPEND write per job: parallel workers do not interleave
+        f.write(line + "\n")
+
+
 def _run(cfg: DictConfig) -> float:
     from surrol_data.datasets.reader import DatasetError
 
+    sweep = _in_sweep()
+    run_dir = str(cfg.get("run_dir", ""))
     try:
         rows = train(to_train_config(cfg))
-    except (FileNotFoundError, ValueError, DatasetError) as e:  # bad input: say what and how to fix, no traceback
+    except (FileNotFoundError, FileExistsError, ValueError, DatasetError) as e:
+        # bad input: say what and how to fix, no traceback; in a sweep the other jobs still run
         print(f"error: {e}", file=sys.stderr)
+        if sweep:
+            _report_job("failed", str(e), run_dir)
+            return float("nan")
         raise SystemExit(2) from None
-    # the sweeper's return value: final evaluation success
-    return float(rows[-1]["success_rate"]) if rows else float("nan")
+    except Exception as e:
+        if not sweep:
+            raise
+        _report_job("failed", f"{type(e).__name__}: {e}", run_dir)
+        traceback.print_exc()
+        return float("nan")
+    success = float(rows[-1]["success_rate"]) if rows else float("nan")
+    if sweep:
+        _report_job("ok", f"final success {success:.2f}", run_dir)
+    return success  # the sweeper's return value: final evaluation success
+
+
+def _print_sweep_report(path: Path) -> int:
+    """A table of every job of the sweep; the number that failed."""
+    from rich.console import Console
+    from rich.table import Table
+
+    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.exists() else []
+    if not rows:
+        return 0
+    table = Table(title=f"sweep: {len(rows)} job(s)")
+    for col in ("job", "status", "run_dir", "detail"):
+        table.add_column(col, overflow="fold")
+    for r in rows:
+        status = "[green]ok[/]" if r["status"] == "ok" else "[bold red]failed[/]"
+        table.add_row(r["job"], status, r["run_dir"], r["detail"])
+    Console(stderr=True).print(table)
+    return sum(r["status"] != "ok" for r in rows)
 
 
 def main(argv: list[str] | None = None) -> None:
-    """Run the Hydra app on ``argv`` (Hydra overrides and flags such as ``-m``, ``--cfg job``)."""
+    """Run the Hydra app on ``argv`` (Hydra overrides and flags such as ``-m``, ``--cfg job``).
+
+    A sweep (``-m``) runs every job even when some fail, then prints one table of all jobs and exits 1 if any
+    failed.
+    """
     if argv is not None:
         sys.argv = ["surrol-data train", *argv]
-    hydra.main(config_path=str(config_dir()), config_name="config", version_base="1.3")(_run)()
+    with tempfile.TemporaryDirectory(prefix="surrol_sweep_") as tmp:
+        report = Path(tmp) / "jobs.jsonl"
+        os.environ[SWEEP_REPORT_VAR] = str(report)  # inherited by the launcher's worker processes
+        try:
+            hydra.main(config_path=str(config_dir()), config_name="config", version_base="1.3")(_run)()
+        finally:
+            os.environ.pop(SWEEP_REPORT_VAR, None)
+            failed = _print_sweep_report(report)
+    if failed:
+        raise SystemExit(1)
 
 
 if __name__ == "__main__":

@@ -8,6 +8,7 @@ that succeeded — read as :class:`~surrol_data.datasets.trajectory.Trajectory` 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+import sys
 from pathlib import Path
 
 from surrol_data.datasets.reader import DatasetReader
@@ -36,6 +37,9 @@ def load_demos(spec: DemoSpec, env_id: str | None = None) -> tuple[list[Trajecto
         raise FileNotFoundError(
             f"demo dataset {root} does not exist. Record one, e.g. `surrol-data collect --source script "
             f"--task NeedlePick --episodes 100 --out {root}`, or point demos.path at an existing dataset")
+    from surrol_data.datasets.guard import require_valid
+
+    require_valid(root)  # cheap checks: never train on a damaged or half-written dataset
     reader = DatasetReader(root)
     where = {str(k): (list(v) if isinstance(v, (list, tuple)) else v) for k, v in dict(spec.where).items()}
     if spec.successful_only:
@@ -50,7 +54,11 @@ def load_demos(spec: DemoSpec, env_id: str | None = None) -> tuple[list[Trajecto
     if len(episodes) < spec.num:
         counts = reader.episodes.groupby(["source", "skill"]).size().to_dict() \
             if {"source", "skill"} <= set(reader.episodes.columns) else {}
-        raise ValueError(f"demos: {len(episodes)} episodes of {root} match {where}, but demos.num={spec.num} were "
-                         f"asked for; lower demos.num or record more (episodes by (source, skill): {counts})")
+        if not episodes:
+            raise ValueError(f"demos: no episode of {root} matches {where}; record some or pick another demos= "
+                             f"(episodes by (source, skill): {counts})")
+        # Fewer than asked (e.g. 20 human demos, demos.num=100): train on what exists, and say so.
+        print(f"warning: demos.num={spec.num} but only {len(episodes)} episodes of {root} match {where}; "
+              f"using those {len(episodes)}", file=sys.stderr)
     chosen = episodes[: spec.num]
     return reader.trajectories(chosen), chosen

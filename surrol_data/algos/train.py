@@ -26,6 +26,7 @@ import csv
 import json
 import math
 import os
+import shutil
 import time
 from dataclasses import asdict, dataclass, field
 from functools import partial
@@ -78,6 +79,7 @@ class TrainConfig:
     schedule: Schedule = field(default_factory=Schedule)
     seed: int = 0
     resume: bool = False
+    overwrite: bool = False         # replace the outputs of an earlier run in run_dir (else it is refused)
     progress: bool = True
     tensorboard: bool = True
 
@@ -181,12 +183,30 @@ def evaluate_policy(env: gym.Env, policy, episodes: int) -> dict:
             "steps_to_complete": s["mean_steps_to_success"], "economy_of_motion_cm": s["mean_path_length_cm"]}
 
 
+RUN_OUTPUTS = ("checkpoint.pt", "metrics.jsonl", "metrics.csv", "policy.pt", "config.json", "process.json", "tb")
+
+
+def claim_run_dir(run_dir: Path, *, resume: bool, overwrite: bool) -> None:
+    """Make ``run_dir``; an earlier run's outputs there are refused unless resumed or overwritten."""
+    if resume and overwrite:
+        raise ValueError("resume=true and overwrite=true contradict each other: pick one")
+    found = [name for name in RUN_OUTPUTS if (run_dir / name).exists()]
+    if found and not resume:
+        if not overwrite:
+            raise FileExistsError(f"{run_dir} already holds a run ({', '.join(found)}): pass resume=true to continue "
+                                  "it, overwrite=true to replace it, or choose another run_dir")
+        for name in found:
+            path = run_dir / name
+            shutil.rmtree(path) if path.is_dir() else path.unlink()
+    run_dir.mkdir(parents=True, exist_ok=True)
+
+
 def train(cfg: TrainConfig) -> list[dict]:
     """Run (or resume) training; returns the per-epoch metric rows."""
     _check(cfg)
     s = cfg.schedule
     run_dir = Path(cfg.run_dir)
-    run_dir.mkdir(parents=True, exist_ok=True)
+    claim_run_dir(run_dir, resume=cfg.resume, overwrite=cfg.overwrite)
     ckpt_path = run_dir / "checkpoint.pt"
     torch.set_num_threads(s.torch_threads)
 

@@ -36,7 +36,7 @@ from surrol_data.collect.devices import HUMAN_DEVICES, Device, DeviceError, open
 from surrol_data.collect.devices.trace import mapping_from_dict, trace_path, write_trace
 from surrol_data.collect.mapping import ActionMapper, MappedStep, MappingSettings
 from surrol_data.collect.recorder import DatasetRecorder
-from surrol_data.collect.script_source import features_for
+from surrol_data.collect.script_source import features_for, first_seed
 from surrol_data.datasets.trajectory import TrajectoryBuilder
 from surrol_data.envs import env_id as make_env_id
 from surrol_data.envs.units import CONTROL_PERIOD_S
@@ -71,7 +71,7 @@ def has_display() -> bool:
 def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | Sequence[Device] = "touch",
                    operator_id: str = "", skill: str = "unknown", sides: Sequence[str | None] | None = None,
                    mapping: MappingSettings | Sequence[MappingSettings] | None = None,
-                   trace: str | Path | None = None, seed: int = 0, max_steps: int | None = None,
+                   trace: str | Path | None = None, seed: int | None = 0, max_steps: int | None = None,
                    keep_failures: bool = False, append: bool = False, gui: bool | None = None,
                    rerun_live: str | None = None, max_attempts: int | None = None, progress: bool = True,
                    command: str | None = None, library: str | Path | None = None,
@@ -103,6 +103,7 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
     import surrol_data.envs  # noqa: F401  (registers the ids)
 
     eid = make_env_id(task)
+    seed = first_seed(out, append, seed, "haptic")
     registered = gym.spec(eid).max_episode_steps
     replay_horizon = _replay_horizon(trace) if names == ["replay"] else None
     horizon = max_steps or replay_horizon or HUMAN_HORIZON_FACTOR * registered
@@ -366,12 +367,21 @@ class _Session:
         provenance = {"source": "haptic", "device": self.devices[0].name, **operator,
                       "device_settings": json.dumps(device_settings, sort_keys=True, default=str),
                       "seed": attempt_seed, "duration_s": self._duration}
-        index = self.recorder.record(traj, provenance)
-        meta = {"task": self.task, "env_id": self.eid, "seed": attempt_seed, "horizon": self.horizon,
-                "episode_index": index, "dataset": str(self.out.resolve()), "success": traj.is_success,
-                "devices": [d.name for d in self.devices], "sides": [s or "" for s in self.sides],
-                "mapping": [m.as_dict() for m in mappings], **operator}
-        write_trace(trace_path(self.out, index), frames, traj.action, meta)
+        # The trace goes to disk before the episode (a kill in between leaves a trace of no episode, which
+        # repair moves aside, never an episode without its trace); signals wait until both are written.
+        with self.recorder.hold_signals():
+            index = self.recorder.num_episodes
+            meta = {"task": self.task, "env_id": self.eid, "seed": attempt_seed, "horizon": self.horizon,
+                    "episode_index": index, "dataset": str(self.out.resolve()), "success": traj.is_success,
+                    "devices": [d.name for d in self.devices], "sides": [s or "" for s in self.sides],
+                    "mapping": [m.as_dict() for m in mappings], **operator}
+            path = write_trace(trace_path(self.out, index), frames, traj.action, meta)
+            try:
+                recorded = self.recorder.record(traj, provenance)
+            except BaseException:
+                path.unlink(missing_ok=True)
+                raise
+            assert recorded == index, (recorded, index)
         self.result.kept += 1
         self.result.episode_indices.append(index)
 

@@ -64,8 +64,10 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from surrol_data.collect import journal
 from surrol_data.datasets.card import write_dataset_card
 from surrol_data.datasets.info import read_sidecar
+from surrol_data.datasets.lock import DatasetLock
 from surrol_data.datasets.reader import (
     DATA_DIR,
     EPISODES_DIR,
@@ -80,6 +82,7 @@ from surrol_data.datasets.schema import (
     PROVENANCE_PREFIX,
     SCHEMA_VERSION,
     SIDECAR_PATH,
+    content_hash,
     dims_from_features,
     normalize_provenance,
     package_version,
@@ -198,7 +201,8 @@ class DatasetRecorder:
     def __init__(self, root: str | Path, *, task: str, env_id: str, task_description: str,
                  features: dict | None = None, repo_id: str | None = None, robot_type: str = ROBOT_TYPE,
                  append: bool = False, checkpoint_every: int = 10, checkpoint_interval_s: float | None = 60.0,
-                 command: str | None = None, handle_signals: bool = True, fast_save: bool = True):
+                 command: str | None = None, handle_signals: bool = True, fast_save: bool = True,
+                 _repairing: bool = False):
         self.root = Path(root)
         self.repo_id = repo_id or f"local/{self.root.resolve().name}"
         self.task, self.env_id, self.task_description = task, env_id, task_description
@@ -216,6 +220,12 @@ class DatasetRecorder:
                 raise ValueError(f"DatasetRecorder: {name} must be a non-empty string, got {value!r}")
 
         self._exists = self.root.exists()
+        if self._exists and not append and _holds_no_episode(self.root):
+            # Left by a recording killed before its first episode: nothing to keep, so it must not block a retry.
+            print(f"note: {self.root} holds no episode (a recording killed before its first episode); "
+                  "replacing it", file=sys.stderr)
+            shutil.rmtree(self.root)
+            self._exists = False
         if self._exists and not append:
             raise FileExistsError(f"{self.root} already exists: pass append=True to add episodes to it, "
                                   "or choose a new folder")
@@ -223,9 +233,10 @@ class DatasetRecorder:
             if not (self.root / INFO_PATH).exists():
                 raise DatasetError(f"{self.root} exists but is not a LeRobot dataset ({INFO_PATH} missing); "
                                    "choose a new folder or the root of an existing dataset")
-            if unreadable_parquet_files(self.root):
-                raise DatasetError(f"{self.root} was left unreadable by a killed recording: run "
-                                   "surrol_data.collect.recorder.repair(root) first, then append")
+            if not _repairing:
+                from surrol_data.datasets.guard import ensure_finished
+
+                ensure_finished(self.root)  # a killed recording is repaired first (with a message)
             existing = json.loads((self.root / INFO_PATH).read_text())["features"]
             if features is not None:
                 ours = {k: v for k, v in existing.items() if k not in _LEROBOT_DEFAULT_FEATURES}
@@ -254,6 +265,8 @@ class DatasetRecorder:
         self._last_checkpoint_t = 0.0
         self._durable = 0
         self._session: dict = {}
+        self._lock = DatasetLock(self.root)
+        self._created = False
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -273,12 +286,20 @@ class DatasetRecorder:
             _install_fast_save()
         self._git_commit = git_commit()
         if self._exists:
-            self._ds = LeRobotDataset.resume(self.repo_id, root=self.root, video_backend=VIDEO_BACKEND)
+            self._lock.acquire()  # before touching anything: a second writer gets a clear error
+            try:
+                self._ds = LeRobotDataset.resume(self.repo_id, root=self.root, video_backend=VIDEO_BACKEND)
+            except BaseException:
+                self._lock.release()
+                raise
         else:
+            # create() makes the folder (and refuses an existing one: a concurrent creator loses there).
             self._ds = LeRobotDataset.create(self.repo_id, fps=FPS, features=self.features, root=self.root,
                                              robot_type=self.robot_type, use_videos=True,
                                              video_backend=VIDEO_BACKEND, metadata_buffer_size=1)
+            self._lock.acquire()
             self._exists = True
+            self._created = True
         self._prepare_writer()
         self._durable = self._ds.meta.total_episodes
         self._last_checkpoint_t = time.monotonic()
@@ -298,11 +319,17 @@ class DatasetRecorder:
                 self._ds.finalize()
                 self._ds = None
                 self._durable = self._total_episodes_on_disk()
+                journal.drop_below(self.root, sys.maxsize)
+                if self._created and self._durable == 0:
+                    # Nothing was recorded (e.g. the first episode failed): leave no folder to block a retry.
+                    shutil.rmtree(self.root, ignore_errors=True)
+                    return
                 self._session["ended_at"] = utc_now_iso()
                 self._write_sidecar(checkpoint=True)
                 write_dataset_card(self.root)
         finally:
             self._ds = None
+            self._lock.release()
             self._restore_signal_handlers()
 
     def _prepare_writer(self) -> None:
@@ -340,6 +367,10 @@ class DatasetRecorder:
             self._pending_signal = signum  # raised when the episode write / checkpoint is complete
             return
         _raise_for_signal(signum)
+
+    def hold_signals(self):
+        """Context manager: SIGINT/SIGTERM wait until the block is done (e.g. an episode and its device trace)."""
+        return self._hold_signals()
 
     @contextlib.contextmanager
     def _hold_signals(self):
@@ -382,6 +413,7 @@ class DatasetRecorder:
         frames = self._frame_arrays(traj)
         prov = normalize_provenance(provenance, traj, defaults={
             "task": self.task, "env_id": self.env_id, "command": self.command, "git_commit": self._git_commit})
+        prov["content_hash"] = content_hash(frames, self.features)
         ds = self._ds
         episode_index = ds.meta.total_episodes
         episode_data = None
@@ -400,9 +432,15 @@ class DatasetRecorder:
             # and shape, so add_frame's per-frame validation would only repeat it T times.
             episode_data = self._episode_buffer(frames, len(traj), episode_index)
         with self._hold_signals():
+            # Durable first (one small file, atomically), then into lerobot's open files; a kill from here on
+            # loses nothing: repair() replays the journal entry if the dataset files did not get the episode.
+            journal.write_entry(self.root, episode_index, traj, prov)
             self._pending_columns = {PROVENANCE_PREFIX + k: v for k, v in prov.items()}
             try:
                 ds.save_episode(episode_data=episode_data)
+            except BaseException:
+                journal.entry_path(self.root, episode_index).unlink(missing_ok=True)  # not recorded after all
+                raise
             finally:
                 self._pending_columns = None
             self._session["episodes"] = self._session.get("episodes", 0) + 1
@@ -427,6 +465,7 @@ class DatasetRecorder:
             self._since_checkpoint = 0
             self._last_checkpoint_t = time.monotonic()
             self._write_sidecar(checkpoint=True)
+            journal.drop_below(self.root, self._durable)
 
     def _episode_buffer(self, frames: dict[str, np.ndarray], T: int, episode_index: int) -> dict:
         """The pre-built frame buffer ``save_episode(episode_data=...)`` takes: what add_frame would accumulate."""
@@ -516,6 +555,23 @@ class DatasetRecorder:
 _LEROBOT_DEFAULT_FEATURES = ("timestamp", "frame_index", "episode_index", "index", "task_index")
 
 
+def _holds_no_episode(root: Path) -> bool:
+    """A folder a killed recorder created before finishing any episode: no live writer, no journal entry,
+    no readable row of episode metadata or frames. It holds nothing to keep."""
+    from surrol_data.datasets.lock import writer_pid
+
+    if not (root / "meta").is_dir() or writer_pid(root) is not None or journal.entries(root):
+        return False
+    for sub in (EPISODES_DIR, DATA_DIR):
+        for path in parquet_files(root, sub):
+            try:
+                if pq.read_metadata(path).num_rows > 0:
+                    return False
+            except (pa.ArrowInvalid, OSError):
+                continue
+    return True
+
+
 def _raise_for_signal(signum: int) -> None:
     if signum == signal.SIGINT:
         raise KeyboardInterrupt
@@ -525,158 +581,8 @@ def _raise_for_signal(signum: int) -> None:
 # ---------------------------------------------------------------------- repair
 
 
-def repair(root: str | Path) -> dict:
-    """Make a dataset left by a hard-killed recorder (SIGKILL, power loss) readable again.
+def repair(root: str | Path):
+    """See :func:`surrol_data.collect.repair.repair` (kept here for the earlier import path)."""
+    from surrol_data.collect.repair import repair as _repair
 
-    Keeps the longest run of episodes 0..k-1 whose metadata and frames are in readable files (with a
-    checkpointing :class:`DatasetRecorder`, every episode completed before its last checkpoint). Unreadable
-    or orphaned files are moved to ``<root>/.surrol_data_repair/<time>/`` (delete it once satisfied);
-    info.json, stats.json, tasks.parquet, the sidecar and the card are rewritten. Returns a report dict:
-    episodes_kept, episodes_dropped, frames, moved (relative paths), backup_dir (or None if nothing was
-    wrong).
-    """
-    root = Path(root)
-    if not (root / "meta").is_dir():
-        raise DatasetError(f"{root} is not a LeRobot dataset (no meta/ folder); nothing to repair")
-    info = _load_info_for_repair(root)
-    stamp = time.strftime("%Y%m%dT%H%M%S")
-    backup = root / REPAIR_DIR / stamp
-    n = 0
-    while backup.exists():  # never mix two repairs' files
-        n += 1
-        backup = root / REPAIR_DIR / f"{stamp}-{n}"
-    moved: list[str] = []
-
-    def move_aside(path: Path) -> None:
-        rel = path.relative_to(root)
-        dest = backup / rel
-        dest.parent.mkdir(parents=True, exist_ok=True)
-        shutil.move(str(path), str(dest))
-        moved.append(str(rel))
-
-    for path in unreadable_parquet_files(root):
-        move_aside(path)
-
-    meta_files = parquet_files(root, EPISODES_DIR)
-    meta = pa.concat_tables([pq.read_table(p) for p in meta_files], promote_options="default") if meta_files else None
-    data_counts: Counter = Counter()
-    data_file_of: dict[tuple[int, int], Path] = {}
-    for path in parquet_files(root, DATA_DIR):
-        chunk, file = int(path.parent.name.split("-")[1]), int(path.stem.split("-")[1])
-        data_file_of[(chunk, file)] = path
-        for ep, n in Counter(pq.read_table(path, columns=["episode_index"]).column(0).to_pylist()).items():
-            data_counts[(chunk, file, ep)] += n
-
-    video_keys = [k for k, ft in info["features"].items() if ft["dtype"] == "video"]
-    rows = {} if meta is None else {r["episode_index"]: r for r in meta.to_pylist()}
-    kept = 0
-    while kept in rows:
-        r = rows[kept]
-        where = (r["data/chunk_index"], r["data/file_index"])
-        if where not in data_file_of or data_counts[(*where, kept)] != r["length"]:
-            break
-        if not all((root / info["video_path"].format(video_key=v, chunk_index=r[f"videos/{v}/chunk_index"],
-                                                        file_index=r[f"videos/{v}/file_index"])).exists()
-                   for v in video_keys):
-            break
-        kept += 1
-
-    total_before = int(info.get("total_episodes", 0))
-    frames_on_disk = sum(data_counts.values())
-    kept_rows = [rows[i] for i in range(kept)]
-    frames = int(sum(r["length"] for r in kept_rows))
-    needs_rewrite = moved or kept != total_before or len(rows) != kept or frames_on_disk != frames
-    if not needs_rewrite:
-        return {"episodes_kept": kept, "episodes_dropped": 0, "frames": frames, "moved": [], "backup_dir": None}
-
-    # Drop rows of lost episodes from files that survived (e.g. a data file that rolled over before the kill).
-    for subdir, write in ((EPISODES_DIR, pq.write_table), (DATA_DIR, _write_one_row_group_per_episode)):
-        for path in parquet_files(root, subdir):
-            table = pq.read_table(path)
-            keep = pc.less(table.column("episode_index"), kept)
-            if pc.all(keep).as_py():
-                continue
-            filtered = table.filter(keep)
-            move_aside(path)
-            if filtered.num_rows:
-                write(filtered, path)
-    referenced = {str(Path(info["video_path"].format(video_key=v, chunk_index=r[f"videos/{v}/chunk_index"],
-                                                     file_index=r[f"videos/{v}/file_index"])))
-                  for r in kept_rows for v in video_keys}
-    if (root / "videos").is_dir():
-        for path in sorted((root / "videos").rglob("*.mp4")):
-            if str(path.relative_to(root)) not in referenced:
-                move_aside(path)
-    if (root / "images").is_dir():  # PNG staging of the episode in progress
-        move_aside(root / "images")
-
-    _rewrite_metadata(root, info, kept_rows)
-    side = read_sidecar(root)
-    side.setdefault("repairs", []).append({"at": utc_now_iso(), "episodes_kept": kept,
-                                           "episodes_dropped": max(total_before, len(rows)) - kept,
-                                           "backup_dir": str(backup.relative_to(root))})
-    _write_json_atomic(root / SIDECAR_PATH, side)
-    write_dataset_card(root)
-    return {"episodes_kept": kept, "episodes_dropped": max(total_before, len(rows)) - kept, "frames": frames,
-            "moved": moved, "backup_dir": str(backup)}
-
-
-def _load_info_for_repair(root: Path) -> dict:
-    try:
-        return json.loads((root / INFO_PATH).read_text())
-    except (OSError, json.JSONDecodeError):
-        saved = read_sidecar(root).get("checkpoint", {}).get("info")
-        if saved is None:
-            raise DatasetError(f"{root / INFO_PATH} is missing or corrupt and {SIDECAR_PATH} holds no checkpoint "
-                               "copy of it; this dataset cannot be repaired automatically") from None
-        return saved
-
-
-def _write_one_row_group_per_episode(table: pa.Table, path: Path) -> None:
-    # The reader (and LeRobot's own layout) expects one row group per episode.
-    episodes = table.column("episode_index").to_numpy()
-    with pq.ParquetWriter(path, table.schema, compression="snappy", use_dictionary=True) as writer:
-        for ep in np.unique(episodes):
-            idx = np.flatnonzero(episodes == ep)
-            writer.write_table(table.slice(int(idx[0]), len(idx)))
-
-
-def _rewrite_metadata(root: Path, info: dict, kept_rows: list[dict]) -> None:
-    """info.json totals, stats.json (re-aggregated from the kept episodes' stats) and tasks.parquet."""
-    from lerobot.datasets.compute_stats import aggregate_stats
-    from lerobot.datasets.io_utils import write_stats
-
-    tasks: list[str] = []
-    for r in kept_rows:
-        tasks += [t for t in r["tasks"] if t not in tasks]
-    tasks_path = root / "meta" / "tasks.parquet"
-    try:
-        existing = pq.read_table(tasks_path).to_pandas()
-        task_ok = set(tasks) <= set(existing.index if "task" not in existing.columns else existing["task"])
-    except (OSError, pa.ArrowInvalid):
-        task_ok = False
-    if not task_ok:
-        import pandas as pd
-
-        # LeRobot assigns task indices in order of first appearance, which this reproduces.
-        pd.DataFrame({"task_index": range(len(tasks))}, index=pd.Index(tasks, name="task")).to_parquet(tasks_path)
-
-    info = dict(info)
-    info["total_episodes"] = len(kept_rows)
-    info["total_frames"] = int(sum(r["length"] for r in kept_rows))
-    info["total_tasks"] = len(pq.read_table(tasks_path))
-    info["splits"] = {"train": f"0:{len(kept_rows)}"}
-    _write_json_atomic(root / INFO_PATH, info)
-
-    episode_stats = []
-    for r in kept_rows:
-        stats: dict[str, dict] = {}
-        for key, value in r.items():
-            if key.startswith("stats/") and value is not None:
-                _, feature, stat = key.split("/", 2)
-                stats.setdefault(feature, {})[stat] = np.asarray(value)
-        episode_stats.append(stats)
-    if episode_stats:
-        write_stats(aggregate_stats(episode_stats), root)
-    elif (root / "meta" / "stats.json").exists():
-        (root / "meta" / "stats.json").unlink()
+    return _repair(root)

@@ -35,16 +35,37 @@ def features_for(env: gym.Env) -> dict:
                           act_dim=env.action_space.shape[0], n_arms=n_arms)
 
 
-def collect_script(task: str, episodes: int, out: str | Path, seed: int = 0, max_steps: int | None = None,
+def first_seed(out: str | Path, append: bool, seed: int | None, source: str) -> int:
+    """The seed of the first attempt: ``seed`` if given; with ``append`` to an existing dataset, one past the
+    largest seed its ``source`` episodes recorded (so appending never re-records an episode); else 0."""
+    if seed is not None:
+        return int(seed)
+    out = Path(out)
+    if not append or not (out / "meta" / "info.json").exists():
+        return 0
+    from surrol_data.datasets.guard import ensure_finished
+    from surrol_data.datasets.reader import DatasetReader
+
+    ensure_finished(out)
+    episodes = DatasetReader(out).episodes
+    if "seed" not in episodes.columns or "source" not in episodes.columns:
+        return 0
+    seeds = episodes.loc[episodes["source"] == source, "seed"]
+    return int(seeds.max()) + 1 if len(seeds) else 0
+
+
+def collect_script(task: str, episodes: int, out: str | Path, seed: int | None = 0, max_steps: int | None = None,
                    keep_failures: bool = False, append: bool = False, max_attempts: int | None = None,
                    progress: bool = True, command: str | None = None) -> CollectResult:
     """Record ``episodes`` oracle episodes of ``task`` into the LeRobot dataset at ``out``.
 
-    Attempt ``i`` uses seed ``seed + i``; an attempt is kept when it succeeded at some step (the original
+    Attempt ``i`` uses seed ``seed + i`` (``seed=None``: 0, or with ``append`` the seed after the dataset's
+    last scripted one, see :func:`first_seed`); an attempt is kept when it succeeded at some step (the original
     generator's rule), or always with ``keep_failures``. Gives up after ``max_attempts`` (default 3×).
     """
     if episodes <= 0:
         raise ValueError(f"--episodes must be positive, got {episodes}")
+    seed = first_seed(out, append, seed, "script")
     import surrol_data.envs  # noqa: F401  (registers the ids)
 
     eid = make_env_id(task)

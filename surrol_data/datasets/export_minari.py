@@ -65,6 +65,9 @@ def export_minari(src: str | Path, out: str | Path, *, dataset_id: str | None = 
     import minari
     from minari.data_collector import EpisodeBuffer
 
+    from surrol_data.datasets.guard import require_valid
+
+    require_valid(src)  # cheap checks: a damaged dataset is refused before anything is written
     reader = DatasetReader(src)
     episodes = reader.select(where)
     if not episodes:

@@ -51,6 +51,9 @@ def export_robomimic(src: str | Path, out: str | Path, *, where: str | None = No
         raise FileExistsError(f"{out} already exists: pass --overwrite or choose another file")
     if out.suffix not in (".hdf5", ".h5"):
         raise ValueError(f"{out}: a robomimic dataset is one .hdf5 file; name it e.g. demos.hdf5")
+    from surrol_data.datasets.guard import require_valid
+
+    require_valid(src)  # cheap checks: a damaged dataset is refused before anything is written
     reader = DatasetReader(src)
     episodes = reader.select(where)
     if not episodes:

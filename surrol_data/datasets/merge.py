@@ -100,17 +100,24 @@ class _VideoFrames:
 
 
 def copy_episodes(selection: list[tuple[str | Path, list[int]]], out: str | Path, *, operation: str,
-                  where: str | None = None, command: str | None = None, progress: bool = True) -> Path:
+                  where: str | None = None, command: str | None = None, progress: bool = True,
+                  drop_duplicates: bool = False) -> Path:
     """Write the episodes ``selection`` = [(dataset root, [episode indices]) ...] into a new dataset ``out``.
 
-    Inputs must share the task, env id and frame features. Returns ``out``.
+    Inputs must share the task, env id and frame features, and pass the cheap validation checks. An episode
+    whose content hash equals an earlier one's is refused (DatasetError), or skipped with ``drop_duplicates``.
+    Returns ``out``.
     """
     from surrol_data.collect.recorder import DatasetRecorder, _write_json_atomic
     from surrol_data.datasets.card import write_dataset_card
 
+    from surrol_data.datasets.guard import require_valid
+
     out = Path(out)
     if out.exists():
         raise FileExistsError(f"{out} already exists: choose a new output folder")
+    for root in dict.fromkeys(Path(r).resolve() for r, _ in selection):
+        require_valid(root)  # cheap checks: a damaged input is refused before anything is written
     readers = [DatasetReader(root) for root, _ in selection]
     for reader, (_, episodes) in zip(readers, selection, strict=True):
         for ep in episodes:
@@ -118,6 +125,13 @@ def copy_episodes(selection: list[tuple[str | Path, list[int]]], out: str | Path
         if reader.root.resolve() == out.resolve():
             raise ValueError(f"the output {out} is one of the inputs")
     shared = _check_compatible(readers)
+    selection, duplicates = _without_duplicates(readers, selection)
+    if duplicates and not drop_duplicates:
+        listed = "; ".join(f"{a} = {b}" for a, b in duplicates[:5]) + (
+            f" (+{len(duplicates) - 5} more)" if len(duplicates) > 5 else "")
+        raise DatasetError(f"{operation}: {len(duplicates)} episode(s) are exact copies of earlier ones (same "
+                           f"content_hash): {listed}. Nothing was written; pass --drop-duplicates to keep one copy "
+                           "of each, or leave the repeated dataset out")
     total = sum(len(eps) for _, eps in selection)
     if total == 0:
         raise DatasetError(f"{operation}: no episode selected" + (f" by --where {where!r}" if where else "")
@@ -146,6 +160,7 @@ def copy_episodes(selection: list[tuple[str | Path, list[int]]], out: str | Path
         bar.close()
     side = read_sidecar(out)
     side["derived_from"] = {"operation": operation, "where": where or "",
+                            "duplicates_dropped": [{"episode": b, "copy_of": a} for a, b in duplicates],
                             "sources": [{"root": str(r.root.resolve()), "episodes": len(eps)}
                                         for r, (_, eps) in zip(readers, selection, strict=True)],
                             "episodes": provenance_of}
@@ -154,23 +169,50 @@ def copy_episodes(selection: list[tuple[str | Path, list[int]]], out: str | Path
     return out
 
 
+def _without_duplicates(readers, selection):
+    """The selection without episodes whose content hash was seen earlier, and the (first, copy) pairs found."""
+    seen: dict[str, str] = {}
+    kept, duplicates = [], []
+    for reader, (root, episodes) in zip(readers, selection, strict=True):
+        hashes = dict(zip(reader.episodes["episode_index"].astype(int), reader.episodes["content_hash"], strict=True))
+        mine = []
+        for ep in episodes:
+            label = f"{reader.root} episode {int(ep)}"
+            digest = hashes[int(ep)]
+            if digest in seen:
+                duplicates.append((seen[digest], label))
+            else:
+                seen[digest] = label
+                mine.append(ep)
+        kept.append((root, mine))
+    return kept, duplicates
+
+
 def _plain(value):
     """pandas/numpy scalar -> python scalar (normalize_provenance checks exact types)."""
     return value.item() if isinstance(value, np.generic) else value
 
 
 def merge_datasets(out: str | Path, inputs: list[str | Path], *, command: str | None = None,
-                   progress: bool = True) -> Path:
-    """All episodes of ``inputs``, in order, into the new dataset ``out``."""
+                   progress: bool = True, drop_duplicates: bool = False) -> Path:
+    """All episodes of ``inputs``, in order, into the new dataset ``out`` (duplicates refused unless dropped)."""
+    from surrol_data.datasets.guard import require_valid
+
     if not inputs:
         raise ValueError("merge needs at least one input dataset")
+    for root in dict.fromkeys(Path(r).resolve() for r in inputs):
+        require_valid(root)
     selection = [(root, DatasetReader(root).select()) for root in inputs]
-    return copy_episodes(selection, out, operation="merge", command=command, progress=progress)
+    return copy_episodes(selection, out, operation="merge", command=command, progress=progress,
+                         drop_duplicates=drop_duplicates)
 
 
 def filter_dataset(src: str | Path, out: str | Path, where: str, *, command: str | None = None,
                    progress: bool = True) -> Path:
     """Episodes of ``src`` matching the :mod:`~surrol_data.datasets.where` expression ``where`` into ``out``."""
+    from surrol_data.datasets.guard import require_valid
+
+    require_valid(src)
     episodes = DatasetReader(src).select(where)
     return copy_episodes([(src, episodes)], out, operation="filter", where=where, command=command,
                          progress=progress)
@@ -184,6 +226,9 @@ def split_dataset(src: str | Path, out: str | Path, valid_fraction: float = 0.1,
     out = Path(out)
     if out.exists():
         raise FileExistsError(f"{out} already exists: choose a new output folder")
+    from surrol_data.datasets.guard import require_valid
+
+    require_valid(src)
     reader = DatasetReader(src)
     chosen = reader.episodes[reader.episodes["episode_index"].isin(reader.select(where))] if where \
         else reader.episodes

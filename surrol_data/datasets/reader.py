@@ -84,6 +84,9 @@ def load_info(root: str | Path) -> dict:
     except json.JSONDecodeError as e:
         raise DatasetError(f"{path} is not valid JSON ({e}); the recording was probably killed while writing it: "
                            "run surrol_data.collect.recorder.repair(root)") from None
+    if not isinstance(info, dict):
+        raise DatasetError(f"{path} holds a JSON {type(info).__name__}, not LeRobot's info object; restore it or "
+                           "run `surrol-data repair` (it rewrites info.json from the recorder's saved copy)")
     version = str(info.get("codebase_version", ""))
     if not version.startswith("v3"):
         raise DatasetError(f"{root} is a LeRobot dataset of codebase_version {version!r}; expected v3.x "
@@ -114,6 +117,34 @@ def column_to_numpy(column: pa.ChunkedArray | pa.Array) -> np.ndarray:
 
 def _as_2d(values: np.ndarray, dim: int) -> np.ndarray:
     return values.reshape(len(values), dim)
+
+
+def trajectory_from_table(table: pa.Table, features: dict) -> Trajectory:
+    """The :class:`Trajectory` of one episode's frame rows (in frame order), ``features`` from info.json."""
+    arrays = {name: column_to_numpy(table.column(name)) for name in table.column_names}
+
+    def dim(key: str) -> int:
+        return int(np.prod(features[key]["shape"]))
+
+    n_arms = dim("complementary_info.jaw_angle")
+
+    def with_last(key: str, next_key: str) -> np.ndarray:
+        now, nxt = _as_2d(arrays[key], dim(key)), _as_2d(arrays[next_key], dim(key))
+        return np.concatenate([now, nxt[-1:]], axis=0).astype(np.float32)
+
+    tip = with_last("complementary_info.tip_position", "complementary_info.next_tip_position")
+    return Trajectory(
+        observation=with_last("observation.state", "next.observation.state"),
+        achieved_goal=with_last("observation.achieved_goal", "next.observation.achieved_goal"),
+        desired_goal=with_last("observation.desired_goal", "next.observation.desired_goal"),
+        action=_as_2d(arrays["action"], dim("action")).astype(np.float32),
+        reward=arrays["next.reward"].reshape(-1).astype(np.float32),
+        success=arrays["next.success"].reshape(-1).astype(bool),
+        terminated=arrays["next.done"].reshape(-1).astype(bool),
+        tip_position=tip.reshape(len(tip), n_arms, 3),
+        jaw_angle=with_last("complementary_info.jaw_angle", "complementary_info.next_jaw_angle"),
+        flags={f: arrays[f"complementary_info.{f}"].reshape(-1).astype(bool) for f in DEVICE_FLAGS},
+    )
 
 
 class DatasetReader:
@@ -280,26 +311,7 @@ class DatasetReader:
         return pa.concat_tables(tables).sort_by("index")
 
     def _trajectory_from(self, table: pa.Table) -> Trajectory:
-        arrays = {name: column_to_numpy(table.column(name)) for name in table.column_names}
-        n_arms = self._dim("complementary_info.jaw_angle")
-
-        def with_last(key: str, next_key: str) -> np.ndarray:
-            now, nxt = _as_2d(arrays[key], self._dim(key)), _as_2d(arrays[next_key], self._dim(key))
-            return np.concatenate([now, nxt[-1:]], axis=0).astype(np.float32)
-
-        tip = with_last("complementary_info.tip_position", "complementary_info.next_tip_position")
-        return Trajectory(
-            observation=with_last("observation.state", "next.observation.state"),
-            achieved_goal=with_last("observation.achieved_goal", "next.observation.achieved_goal"),
-            desired_goal=with_last("observation.desired_goal", "next.observation.desired_goal"),
-            action=_as_2d(arrays["action"], self._dim("action")).astype(np.float32),
-            reward=arrays["next.reward"].reshape(-1).astype(np.float32),
-            success=arrays["next.success"].reshape(-1).astype(bool),
-            terminated=arrays["next.done"].reshape(-1).astype(bool),
-            tip_position=tip.reshape(len(tip), n_arms, 3),
-            jaw_angle=with_last("complementary_info.jaw_angle", "complementary_info.next_jaw_angle"),
-            flags={f: arrays[f"complementary_info.{f}"].reshape(-1).astype(bool) for f in DEVICE_FLAGS},
-        )
+        return trajectory_from_table(table, self.features)
 
     def trajectory(self, ep: int) -> Trajectory:
         """Episode ``ep`` as a :class:`Trajectory` (T+1 observations, the last one included; no images)."""

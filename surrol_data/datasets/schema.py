@@ -69,6 +69,7 @@ PROVENANCE_COLUMNS: dict[str, type] = {
     "package_version": str,
     "git_commit": str,          # "" if unknown
     "command": str,             # the command line that recorded the episode
+    "content_hash": str,        # content_hash() of the episode's frames: finds duplicates and altered data
 }
 
 PROVENANCE_CHOICES: dict[str, tuple[str, ...]] = {
@@ -91,6 +92,7 @@ _DEFAULTS: dict[str, object] = {
     "duration_s": float("nan"),
     "git_commit": "",
     "command": "",
+    "content_hash": "",
 }
 
 _DOF_NAMES = ("dx", "dy", "dz", "dyaw", "jaw")
@@ -181,6 +183,25 @@ def dims_from_features(features: dict) -> dict:
         }
     except KeyError as e:
         raise ValueError(f"features lack {e.args[0]!r}: not a surrol_data frame schema (see frame_features)") from None
+
+
+def content_hash(frames: dict[str, np.ndarray], features: dict) -> str:
+    """SHA-256 (hex, 32 chars) of an episode's stored frame columns: every non-video feature of ``features``,
+    by name, as the (T, dim) array of its declared dtype. Equal for the same episode copied by merge/filter/
+    split (values round-trip exactly), different after any change of a stored value."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    for name in sorted(features):
+        ft = features[name]
+        if ft["dtype"] in ("video", "image", "string") or name not in frames:
+            continue
+        arr = np.asarray(frames[name])
+        arr = np.ascontiguousarray(arr.reshape(len(arr), -1), dtype=np.dtype(ft["dtype"]))
+        digest.update(name.encode())
+        digest.update(str(arr.shape).encode())
+        digest.update(arr.tobytes())
+    return digest.hexdigest()[:32]
 
 
 def utc_now_iso() -> str:

@@ -33,22 +33,25 @@ from surrol_data.datasets.info import read_sidecar
 from surrol_data.datasets.reader import (
     DATA_DIR,
     EPISODES_DIR,
+    INFO_PATH,
     DatasetError,
     column_to_numpy,
     load_info,
     parquet_files,
-    unreadable_parquet_files,
+    trajectory_from_table,
 )
 from surrol_data.datasets.schema import (
     PROVENANCE_CHOICES,
     PROVENANCE_COLUMNS,
+    FPS,
     PROVENANCE_PREFIX,
     SIDECAR_PATH,
+    content_hash,
     dims_from_features,
     frame_features,
 )
 
-REPAIR_HINT = "run `python -c \"from surrol_data.collect.recorder import repair; repair('DIR')\"`"
+REPAIR_HINT = "run `surrol-data repair DIR`"
 _MAX_LISTED = 5
 _ARROW_TYPE_CHECK = {
     str: (pa.types.is_string, pa.types.is_large_string),
@@ -56,6 +59,8 @@ _ARROW_TYPE_CHECK = {
     int: (pa.types.is_integer,),
     float: (pa.types.is_floating,),
 }
+_LEROBOT_DEFAULT = ("timestamp", "frame_index", "episode_index", "index", "task_index")
+_TRACE_DIR = "meta/device_traces"
 _CHAINED = (("observation.state", "next.observation.state"),
             ("observation.achieved_goal", "next.observation.achieved_goal"),
             ("observation.desired_goal", "next.observation.desired_goal"),
@@ -79,42 +84,70 @@ def _listed(items) -> str:
     return ", ".join(str(i) for i in items[:_MAX_LISTED]) + more
 
 
-def validate_dataset(root: str | Path, *, check_reward: bool = True, check_lerobot: bool = True) -> list[Problem]:
-    """All problems found in the dataset at ``root`` (empty list: it is valid). See the module docstring."""
+def validate_dataset(root: str | Path, *, check_reward: bool = True, check_lerobot: bool = True,
+                     check_videos: bool = True) -> list[Problem]:
+    """All problems found in the dataset at ``root`` (empty list: it is valid). See the module docstring.
+
+    Never raises on a damaged dataset: a check that fails unexpectedly is itself reported as a problem.
+    """
     root = Path(root)
+    try:
+        return _validate(root, check_reward, check_lerobot, check_videos)
+    except Exception as e:  # noqa: BLE001 - the promise is a list of problems, never a traceback
+        return [Problem("internal", str(root), f"validation stopped on {type(e).__name__}: {e}; the dataset is "
+                                               f"damaged in a way no check names yet: try `surrol-data repair "
+                                               f"{root}`")]
+
+
+def _validate(root: Path, check_reward: bool, check_lerobot: bool, check_videos: bool) -> list[Problem]:
     problems: list[Problem] = []
     try:
         info = load_info(root)
     except DatasetError as e:
-        return [Problem("format", str(root), str(e))]
-    for path in unreadable_parquet_files(root):
-        problems.append(Problem("parquet", str(path.relative_to(root)),
-                                f"cannot be read (truncated, or no parquet footer: the recorder was killed before "
-                                f"it finalized); {REPAIR_HINT} to keep every episode before the last checkpoint"))
-    if problems:
+        return [Problem("format", INFO_PATH, f"{e}")]
+    problems += _check_info(info, read_sidecar(root))
+    problems += _check_unfinished(root)
+    for sub in (DATA_DIR, EPISODES_DIR):
+        for path in parquet_files(root, sub):
+            why = _unreadable(path)
+            if why:
+                problems.append(Problem("parquet", str(path.relative_to(root)),
+                                        f"cannot be read ({why}): truncated, overwritten or left by a killed "
+                                        f"writer; {REPAIR_HINT} to keep every intact episode"))
+    if any(p.check == "parquet" for p in problems) or any(p.check == "format" for p in problems):
         return problems
     if not parquet_files(root, EPISODES_DIR) or not parquet_files(root, DATA_DIR):
-        return [Problem("format", str(root), f"no parquet files under {EPISODES_DIR}/ or {DATA_DIR}/: the dataset "
-                                             "holds no episode; record at least one")]
-
-    problems += _check_schema(info)
-    if problems:
-        return problems
-    meta = pa.concat_tables([pq.read_table(p, columns=[n for n in pq.read_schema(p).names
-                                                       if not n.startswith("stats/")])
-                             for p in parquet_files(root, EPISODES_DIR)], promote_options="default")
-    meta = meta.sort_by("episode_index")
+        return problems + [Problem("format", str(root), f"no parquet files under {EPISODES_DIR}/ or {DATA_DIR}/: "
+                                                        "the dataset holds no episode; record at least one")]
+    schema_problems = _check_schema(info)
+    if schema_problems:
+        return problems + schema_problems
+    meta_tables = []
+    for path in parquet_files(root, EPISODES_DIR):
+        table = pq.read_table(path)
+        meta_tables.append(table.append_column("__meta_file", pa.array([str(path.relative_to(root))] * table.num_rows)))
+    meta_full = pa.concat_tables(meta_tables, promote_options="default").sort_by("episode_index")
+    meta = meta_full.select([n for n in meta_full.column_names if not n.startswith("stats/")])
     problems += _check_provenance(meta)
+    column_problems = _check_columns(root, info)
+    if column_problems:
+        return problems + column_problems
     data = _read_data(root, info)
+    problems += _check_tasks(root, info, meta, data)
     count_problems = _check_counts(info, meta, data)
     problems += count_problems
     if count_problems:
         return problems  # frame checks would only repeat the mismatch
+    problems += _check_locations(root, info, meta, data)
     problems += _check_values(info, data)
+    if not any(p.where.endswith("content_hash") and "missing" in p.message for p in problems):
+        problems += _check_episodes(info, meta, data)
+    problems += _check_stats(root, info, meta_full, data)
     side = read_sidecar(root)
-    if not side:
-        problems.append(Problem("sidecar", SIDECAR_PATH, "missing or not JSON: dataset-level facts (task, env id) "
-                                                         "are unknown; the dataset was not written by DatasetRecorder"))
+    problems += _check_sidecar(root, side, meta)
+    problems += _check_traces(root, meta, data)
+    if check_videos:
+        problems += _check_videos(root, info, meta_full)
     if check_reward:
         problems += _check_reward(side, meta, data)
     if check_lerobot:
@@ -192,12 +225,368 @@ def _check_provenance(meta: pa.Table) -> list[Problem]:
 
 
 def _read_data(root: Path, info: dict) -> pa.Table:
+    """Every non-video frame column, plus ``__file``: the position of the file each row came from."""
     names = [k for k, ft in info["features"].items() if ft["dtype"] not in ("video", "image", "string")]
     tables = []
-    for path in parquet_files(root, DATA_DIR):
+    for i, path in enumerate(parquet_files(root, DATA_DIR)):
         present = [n for n in names if n in pq.read_schema(path).names]
-        tables.append(pq.read_table(path, columns=present))
+        table = pq.read_table(path, columns=present)
+        tables.append(table.append_column("__file", pa.array(np.full(table.num_rows, i, np.int64))))
     return pa.concat_tables(tables, promote_options="default").sort_by("index")
+
+
+def _check_columns(root: Path, info: dict) -> list[Problem]:
+    """Every data file stores each feature with the width info.json declares (and has every feature)."""
+    problems = []
+    for path in parquet_files(root, DATA_DIR):
+        schema = pq.read_schema(path)
+        for name, ft in info["features"].items():
+            if ft["dtype"] in ("video", "string"):
+                continue
+            if name not in schema.names:
+                problems.append(Problem("schema", f"{path.relative_to(root)} column {name}",
+                                        "missing from the data file though info.json declares it; restore the file "
+                                        f"or {REPAIR_HINT}"))
+                continue
+            typ = schema.field(name).type
+            width = typ.list_size if pa.types.is_fixed_size_list(typ) else 1
+            declared = int(np.prod(ft["shape"])) if ft["dtype"] != "image" else width
+            if width != declared:
+                problems.append(Problem("schema", f"meta/info.json features.{name}.shape",
+                                        f"declares {list(ft['shape'])} but {path.relative_to(root)} stores {width} "
+                                        "values per frame; info.json was edited: restore the shape"))
+    return problems
+
+
+def _unreadable(path: Path) -> str:
+    """Why a parquet file cannot be read whole ("" if it can)."""
+    try:
+        pq.read_table(path)
+        return ""
+    except Exception as e:  # noqa: BLE001 - whatever pyarrow raises is the finding
+        return f"{type(e).__name__}: {str(e)[:120]}"
+
+
+def _check_info(info: dict, side: dict) -> list[Problem]:
+    problems = []
+    where = INFO_PATH
+    fps = info.get("fps")
+    if fps != FPS:
+        problems.append(Problem("format", f"{where} fps", f"is {fps!r}; surrol_data records at {FPS} frames/s (one "
+                                                          "control period per frame): timestamps and every duration "
+                                                          f"derived from them would be wrong; set it back to {FPS}"))
+    elif side and side.get("fps", FPS) != fps:
+        problems.append(Problem("format", f"{where} fps", f"is {fps}, {SIDECAR_PATH} says {side.get('fps')}"))
+    for key in ("data_path", "video_path", "features", "total_episodes", "total_frames", "total_tasks"):
+        if key not in info:
+            problems.append(Problem("format", f"{where} {key}", "missing; LeRobot cannot locate or count the "
+                                                                "files without it: restore info.json (repair "
+                                                                "rewrites it from the surviving files)"))
+    for key in ("total_episodes", "total_frames", "total_tasks"):
+        if key in info and not isinstance(info[key], int):
+            problems.append(Problem("format", f"{where} {key}", f"is {info[key]!r}, expected an integer"))
+    if not isinstance(info.get("features", {}), dict):
+        problems.append(Problem("format", f"{where} features", "is not a mapping of feature name to spec"))
+    return problems
+
+
+def _check_unfinished(root: Path) -> list[Problem]:
+    from surrol_data.collect.repair import is_unfinished
+    from surrol_data.datasets.lock import writer_pid
+
+    holder = writer_pid(root)
+    if holder is not None:
+        return [Problem("unfinished", str(root), f"is being written right now (pid {holder or '?'}); validate it "
+                                                 "once the recording has finished")]
+    return [Problem("unfinished", str(root), f"{why}: a recording was killed; {REPAIR_HINT} (our commands do it "
+                                             "automatically) to keep every finished episode")
+            for why in is_unfinished(root) if "parquet footer" not in why]
+
+
+def _check_tasks(root: Path, info: dict, meta: pa.Table, data: pa.Table) -> list[Problem]:
+    path = root / "meta" / "tasks.parquet"
+    try:
+        tasks = pq.read_table(path).to_pandas()
+        names = list(tasks.index if "task" not in tasks.columns else tasks["task"])
+        indices = list(tasks["task_index"])
+    except Exception as e:  # noqa: BLE001
+        return [Problem("tasks", "meta/tasks.parquet", f"cannot be read ({type(e).__name__}); LeRobot needs it to "
+                                                       f"name each frame's task: {REPAIR_HINT}")]
+    problems = []
+    if indices != list(range(len(names))):
+        problems.append(Problem("tasks", "meta/tasks.parquet task_index", f"is {indices}, expected 0..{len(names) - 1}"))
+    if info.get("total_tasks") != len(names):
+        problems.append(Problem("tasks", "meta/info.json total_tasks", f"says {info.get('total_tasks')}, "
+                                                                       f"meta/tasks.parquet has {len(names)}; "
+                                                                       f"{REPAIR_HINT}"))
+    if "tasks" in meta.column_names:
+        used = {t for row in meta.column("tasks").to_pylist() for t in (row or [])}
+        unknown = sorted(used - set(names))
+        if unknown:
+            problems.append(Problem("tasks", "meta/tasks.parquet", f"lacks task(s) {unknown} that meta/episodes "
+                                                                   f"names; {REPAIR_HINT}"))
+    task_index = column_to_numpy(data.column("task_index")).astype(np.int64).reshape(-1)
+    bad = np.flatnonzero((task_index < 0) | (task_index >= len(names)))
+    if len(bad):
+        episodes = column_to_numpy(data.column("episode_index")).reshape(-1)
+        problems.append(Problem("tasks", "data/ task_index", f"out of range 0..{len(names) - 1} in episode(s) "
+                                                             f"{_listed(np.unique(episodes[bad]))}; the frames "
+                                                             "point at a task that does not exist: re-record or "
+                                                             "drop those episodes"))
+    return problems
+
+
+def _check_locations(root: Path, info: dict, meta: pa.Table, data: pa.Table) -> list[Problem]:
+    """Each episode's rows are where meta/episodes says (file, from/to index)."""
+    problems = []
+    files = [str(p.relative_to(root)) for p in parquet_files(root, DATA_DIR)]
+    episodes = column_to_numpy(meta.column("episode_index")).astype(np.int64)
+    lengths = column_to_numpy(meta.column("length")).astype(np.int64)
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    for name, expected in (("dataset_from_index", starts), ("dataset_to_index", starts + lengths)):
+        if name in meta.column_names:
+            got = column_to_numpy(meta.column(name)).astype(np.int64)
+            bad = episodes[got != expected]
+            if len(bad):
+                problems.append(Problem("counts", f"meta/episodes {name}", f"wrong for episode(s) {_listed(bad)}; "
+                                                                           f"LeRobot would read other frames: {REPAIR_HINT}"))
+    if {"meta/episodes/chunk_index", "meta/episodes/file_index"} <= set(meta.column_names):
+        said = [EPISODES_DIR + f"/chunk-{int(c):03d}/file-{int(f):03d}.parquet" for c, f in zip(
+            column_to_numpy(meta.column("meta/episodes/chunk_index")),
+            column_to_numpy(meta.column("meta/episodes/file_index")), strict=True)]
+        actual = meta.column("__meta_file").to_pylist()
+        bad = [f"{ep} (says {s_}, is in {a})" for ep, s_, a in zip(episodes, said, actual, strict=True) if s_ != a]
+        if bad:
+            problems.append(Problem("counts", "meta/episodes meta/episodes/file_index", "episode(s) " + _listed(bad)
+                                    + f": metadata rows are not in the file they name (swapped files?); {REPAIR_HINT}"))
+    data_file = column_to_numpy(data.column("__file")).astype(np.int64)
+    first_row = starts
+    wrong = []
+    for ep, row, chunk, file in zip(episodes, first_row, column_to_numpy(meta.column("data/chunk_index")),
+                                    column_to_numpy(meta.column("data/file_index")), strict=True):
+        said = info["data_path"].format(chunk_index=int(chunk), file_index=int(file))
+        actual = files[data_file[row]] if row < len(data_file) else "?"
+        if said != actual:
+            wrong.append(f"{ep} (metadata {said}, frames in {actual})")
+    if wrong:
+        problems.append(Problem("counts", "meta/episodes data/file_index", "episode(s) " + _listed(wrong)
+                                + f": the metadata points at the wrong data file (swapped files?); {REPAIR_HINT}"))
+    return problems
+
+
+def _episode_slices(meta: pa.Table):
+    episodes = column_to_numpy(meta.column("episode_index")).astype(np.int64)
+    lengths = column_to_numpy(meta.column("length")).astype(np.int64)
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    return list(zip(episodes.tolist(), starts.tolist(), lengths.tolist(), strict=True))
+
+
+def _check_episodes(info: dict, meta: pa.Table, data: pa.Table) -> list[Problem]:
+    """Per episode: stored content hash, provenance metrics recomputed, actions in range, timestamps, duplicates."""
+    from surrol_data.evaluation.metrics import trajectory_proficiency
+
+    features = {k: v for k, v in info["features"].items() if k not in _LEROBOT_DEFAULT}
+    numeric = {k: column_to_numpy(data.column(k)).reshape(data.num_rows, -1)
+               for k, ft in features.items() if ft["dtype"] not in ("video", "image", "string")}
+    prov = {name: meta.column(PROVENANCE_PREFIX + name).to_pylist() for name in PROVENANCE_COLUMNS
+            if PROVENANCE_PREFIX + name in meta.column_names}
+    hash_bad, dup, metric_bad = [], {}, {}
+    for row, (ep, start, length) in enumerate(_episode_slices(meta)):
+        frames = {k: v[start:start + length] for k, v in numeric.items()}
+        digest = content_hash(frames, features)
+        stored = prov.get("content_hash", [None] * (row + 1))[row]
+        if stored is not None and digest != stored:
+            hash_bad.append(ep)
+        dup.setdefault(stored or digest, []).append(ep)
+        try:
+            traj = trajectory_from_table(data.slice(start, length), info["features"])
+            prof = trajectory_proficiency(traj)
+        except Exception:  # noqa: BLE001 - malformed frames are reported by the other checks
+            continue
+        computed = {"success": prof.success, "steps_to_success": prof.steps_to_success,
+                    "path_length_cm": prof.path_length_cm, "jaw_closures": prof.jaw_closures,
+                    "clutch_uses": prof.clutch_uses, "episode_steps": prof.steps}
+        for name, value in computed.items():
+            if name not in prov:
+                continue
+            stored_value = prov[name][row]
+            same = (np.isclose(stored_value, value, rtol=1e-4, atol=1e-4, equal_nan=True)
+                    if isinstance(value, float) else stored_value == value)
+            if not same:
+                metric_bad.setdefault(name, []).append(f"{ep} (stored {stored_value}, frames give {value})")
+    problems = []
+    if hash_bad:
+        problems.append(Problem("values", "meta/episodes provenance/content_hash", f"episode(s) {_listed(hash_bad)}: "
+                                "the frames in data/ are not the frames that were recorded (values changed, rows "
+                                "swapped or the hash edited); re-record those episodes or drop them with "
+                                "`surrol-data filter`"))
+    for name, bad in metric_bad.items():
+        problems.append(Problem("provenance", f"meta/episodes column {PROVENANCE_PREFIX}{name}", "episode(s) "
+                                + _listed(bad) + " disagree with the recorded frames; the metadata or the frames "
+                                "were altered: re-record or drop those episodes"))
+    copies = [eps for eps in dup.values() if len(eps) > 1]
+    if copies:
+        problems.append(Problem("duplicates", "meta/episodes provenance/content_hash",
+                                "identical episodes " + _listed("=".join(map(str, eps)) for eps in copies)
+                                + "; keep one copy (`surrol-data merge OUT DIR --drop-duplicates`)"))
+    if "action" in numeric:
+        episodes = column_to_numpy(data.column("episode_index")).astype(np.int64).reshape(-1)
+        out = np.flatnonzero((np.abs(numeric["action"]) > 1.0 + 1e-6).any(axis=1))
+        if len(out):
+            problems.append(Problem("values", "column action", f"outside the env's action range [-1, 1] in "
+                                    f"episode(s) {_listed(np.unique(episodes[out]))} (max |a| = "
+                                    f"{np.abs(numeric['action'][out]).max():.3g}); actions were scaled or "
+                                    "corrupted: re-record or drop those episodes"))
+    timestamps = column_to_numpy(data.column("timestamp")).reshape(-1).astype(np.float64)
+    frame = column_to_numpy(data.column("frame_index")).reshape(-1).astype(np.float64)
+    fps = info.get("fps") if isinstance(info.get("fps"), (int, float)) and info.get("fps") else FPS
+    bad = np.flatnonzero(~np.isclose(timestamps, frame / fps, rtol=0, atol=1e-4))
+    if len(bad):
+        episodes = column_to_numpy(data.column("episode_index")).astype(np.int64).reshape(-1)
+        problems.append(Problem("values", "column timestamp", f"is not frame_index / fps ({fps}) in episode(s) "
+                                f"{_listed(np.unique(episodes[bad]))}; LeRobot aligns frames and video by it: "
+                                "re-record or drop those episodes"))
+    return problems
+
+
+_STAT_TOL = dict(rtol=1e-3, atol=1e-4)
+
+
+def _check_stats(root: Path, info: dict, meta_full: pa.Table, data: pa.Table) -> list[Problem]:
+    """Per-episode stats (meta/episodes stats/*) against the frames, and meta/stats.json against those."""
+    problems = []
+    floats = [k for k, ft in info["features"].items() if ft["dtype"].startswith("float") and k in data.column_names]
+    bad_episode: dict[str, list[int]] = {}
+    agg: dict[str, dict] = {}
+    for row, (ep, start, length) in enumerate(_episode_slices(meta_full)):
+        for k in floats:
+            values = column_to_numpy(data.column(k)).reshape(data.num_rows, -1)[start:start + length].astype(np.float64)
+            if not len(values) or not np.isfinite(values).all():
+                continue
+            got = {"min": values.min(0), "max": values.max(0), "mean": values.mean(0)}
+            for stat, value in got.items():
+                col = f"stats/{k}/{stat}"
+                if col not in meta_full.column_names:
+                    continue
+                stored = meta_full.column(col)[row].as_py()
+                if stored is None or not np.allclose(np.asarray(stored, np.float64).reshape(-1), value, **_STAT_TOL):
+                    bad_episode.setdefault(f"{k} {stat}", []).append(ep)
+            a = agg.setdefault(k, {"min": got["min"], "max": got["max"], "sum": np.zeros_like(got["mean"]), "n": 0})
+            a["min"], a["max"] = np.minimum(a["min"], got["min"]), np.maximum(a["max"], got["max"])
+            a["sum"] = a["sum"] + values.sum(0)
+            a["n"] += length
+    for what, eps in bad_episode.items():
+        problems.append(Problem("stats", f"meta/episodes stats/{what.replace(' ', '/')}", f"episode(s) {_listed(eps)} "
+                                "disagree with their frames; the statistics (used to normalise policy inputs) or "
+                                f"the frames were altered: {REPAIR_HINT} rewrites the statistics"))
+    path = root / "meta" / "stats.json"
+    try:
+        stats = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        return problems + [Problem("stats", "meta/stats.json", f"missing or not JSON ({type(e).__name__}); LeRobot "
+                                                               f"normalises with it: {REPAIR_HINT} rewrites it")]
+    wrong = []
+    for k, a in agg.items():
+        if not a["n"]:
+            continue
+        got = {"min": a["min"], "max": a["max"], "mean": a["sum"] / a["n"]}
+        for stat, value in got.items():
+            stored = stats.get(k, {}).get(stat) if isinstance(stats.get(k), dict) else None
+            try:
+                ok = stored is not None and np.allclose(np.asarray(stored, np.float64).reshape(-1), value, **_STAT_TOL)
+            except (TypeError, ValueError):
+                ok = False
+            if not ok:
+                wrong.append(f"{k}/{stat}")
+    if wrong:
+        problems.append(Problem("stats", "meta/stats.json", f"{_listed(wrong)} disagree with the frames of the "
+                                "dataset; policies normalise with these: " + REPAIR_HINT + " rewrites them"))
+    return problems
+
+
+def _check_sidecar(root: Path, side: dict, meta: pa.Table) -> list[Problem]:
+    if not side:
+        return [Problem("sidecar", SIDECAR_PATH, "missing or not JSON: dataset-level facts (task, env id) are "
+                                                 "unknown; the dataset was not written by DatasetRecorder (restore "
+                                                 "the file from a copy)")]
+    problems = []
+    for key in ("task", "env_id"):
+        column = PROVENANCE_PREFIX + key
+        if column in meta.column_names:
+            values = set(meta.column(column).to_pylist())
+            if side.get(key) not in values or len(values) != 1:
+                problems.append(Problem("sidecar", f"{SIDECAR_PATH} {key}", f"is {side.get(key)!r}, the episodes say "
+                                        f"{sorted(map(str, values))}; one dataset holds one task: fix the sidecar "
+                                        "or split the dataset"))
+    return problems
+
+
+def _check_traces(root: Path, meta: pa.Table, data: pa.Table) -> list[Problem]:
+    """Haptic sessions save each episode's device trace; it must be there, readable, and of that episode."""
+    folder = root / _TRACE_DIR
+    if not folder.is_dir() or PROVENANCE_PREFIX + "source" not in meta.column_names:
+        return []
+    problems = []
+    sources = meta.column(PROVENANCE_PREFIX + "source").to_pylist()
+    actions = column_to_numpy(data.column("action")).reshape(data.num_rows, -1)
+    for row, (ep, start, length) in enumerate(_episode_slices(meta)):
+        path = folder / f"episode_{ep:06d}.npz"
+        rel = str(path.relative_to(root))
+        if not path.exists():
+            if sources[row] == "haptic":
+                problems.append(Problem("traces", rel, f"missing: episode {ep} was recorded by a device but its trace "
+                                                       "is gone (replay and the device-rate metrics need it); "
+                                                       "restore it from a copy"))
+            continue
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                recorded = np.asarray(z["actions"], np.float32)
+                json.loads(str(z["meta"]))
+        except Exception as e:  # noqa: BLE001
+            problems.append(Problem("traces", rel, f"cannot be read ({type(e).__name__}); episode {ep}'s device "
+                                                   "trace is damaged: restore it from a copy"))
+            continue
+        if recorded.shape != actions[start:start + length].shape or not np.allclose(
+                recorded, actions[start:start + length], atol=1e-6):
+            problems.append(Problem("traces", rel, f"its actions are not episode {ep}'s actions (a trace of another "
+                                                   "episode, or altered): restore the right file"))
+    for path in sorted(folder.glob("episode_*.npz")):
+        try:
+            ep = int(path.stem.split("_")[1])
+        except ValueError:
+            ep = -1
+        if not 0 <= ep < meta.num_rows:
+            problems.append(Problem("traces", str(path.relative_to(root)), "belongs to no episode of the dataset "
+                                                                           f"; {REPAIR_HINT} moves it aside"))
+    return problems
+
+
+def _check_videos(root: Path, info: dict, meta_full: pa.Table) -> list[Problem]:
+    from surrol_data.collect.repair import _video_ok
+
+    keys = [k for k, ft in info["features"].items() if ft["dtype"] == "video"]
+    problems = []
+    for key in keys:
+        needed: dict[str, tuple[float, list[int]]] = {}
+        for r in meta_full.select([c for c in meta_full.column_names if c.startswith(f"videos/{key}/")
+                                   or c in ("episode_index", "length")]).to_pylist():
+            ep = int(r["episode_index"])
+            start, end = r.get(f"videos/{key}/from_timestamp"), r.get(f"videos/{key}/to_timestamp")
+            if start is None or end is None or abs((end - start) - r["length"] / FPS) > 1e-3:
+                problems.append(Problem("videos", f"meta/episodes videos/{key}/*_timestamp", f"episode {ep}: the "
+                                        f"segment [{start}, {end}] s is not its {r['length']} frames at {FPS} fps; "
+                                        f"{REPAIR_HINT}"))
+                continue
+            rel = info["video_path"].format(video_key=key, chunk_index=r[f"videos/{key}/chunk_index"],
+                                            file_index=r[f"videos/{key}/file_index"])
+            end_before, eps = needed.get(rel, (0.0, []))
+            needed[rel] = (max(end_before, end), eps + [ep])
+        for rel, (end, eps) in needed.items():
+            if not _video_ok(root / rel, end):
+                problems.append(Problem("videos", rel, f"missing, unreadable or shorter than {end:.1f} s: the camera "
+                                                       f"frames of episode(s) {_listed(eps)} are lost; "
+                                                       f"{REPAIR_HINT} keeps the other episodes"))
+    return problems
 
 
 def _check_counts(info: dict, meta: pa.Table, data: pa.Table) -> list[Problem]:

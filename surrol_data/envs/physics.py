@@ -9,10 +9,12 @@ coarser integration (``SUBSTEPS`` per control period), which keeps contacts stab
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import ctypes
 import os
 import sys
+import weakref
 
 import numpy as np
 
@@ -65,10 +67,20 @@ def scaled_velocity_limits() -> np.ndarray:
     return v
 
 
+def _disconnect_at_exit(ref: weakref.ref) -> None:
+    # BulletClient.__del__ of a client still alive at interpreter exit runs after os/pybullet are torn
+    # down and raises TypeError; disconnecting it while the interpreter is whole makes __del__ a no-op.
+    client = ref()
+    if client is not None and getattr(client, "_client", -1) >= 0:
+        with contextlib.suppress(Exception):
+            client.disconnect()
+
+
 def make_client(gui: bool = False) -> BulletClient:
     """A fresh PyBullet world with this project's physics settings (no module-level client anywhere)."""
     with _stdout_silenced(not gui):
         client = BulletClient(connection_mode=pb.GUI if gui else pb.DIRECT)
+    atexit.register(_disconnect_at_exit, weakref.ref(client))
     configure(client)
     if gui:
         client.configureDebugVisualizer(pb.COV_ENABLE_GUI, 0)

@@ -1,0 +1,54 @@
+"""What every command does before it trusts a dataset it was given.
+
+1. :func:`ensure_finished`: a dataset left by a killed writer is repaired automatically, saying so on stderr
+   (the same as ``surrol-data repair DIR``); one being written by a live process is refused.
+2. :func:`require_valid`: the cheap checks of :func:`surrol_data.datasets.validate.validate_dataset` (no env,
+   no lerobot import); a damaged dataset is refused with the validator's own messages.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+from surrol_data.datasets.reader import DatasetError
+
+
+def _stderr(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def ensure_finished(root: str | Path, notify: Callable[[str], None] = _stderr) -> None:
+    """Repair ``root`` if a killed writer left it unfinished (see :func:`surrol_data.collect.repair.is_unfinished`)."""
+    from surrol_data.collect.repair import is_unfinished, repair
+    from surrol_data.datasets.lock import writer_pid
+
+    root = Path(root)
+    if not (root / "meta").is_dir():
+        return  # not a dataset: the caller's own check says so
+    holder = writer_pid(root)
+    if holder is not None:
+        raise DatasetError(f"{root} is being written by another process (pid {holder or '?'}); wait until it "
+                           "has finished")
+    reasons = is_unfinished(root)
+    if not reasons:
+        return
+    notify(f"{root} was left unfinished by a killed recording ({'; '.join(reasons)}): repairing it "
+           f"(`surrol-data repair {root}`)")
+    report = repair(root)
+    for line in report.lines():
+        notify(f"  repair: {line}")
+
+
+def require_valid(root: str | Path, notify: Callable[[str], None] = _stderr) -> None:
+    """:func:`ensure_finished`, then the cheap validation checks; DatasetError listing every problem found."""
+    from surrol_data.datasets.validate import validate_dataset
+
+    ensure_finished(root, notify)
+    problems = validate_dataset(root, check_reward=False, check_lerobot=False, check_videos=False)
+    if problems:
+        listed = "\n  ".join(str(p) for p in problems)
+        raise DatasetError(f"{root} is damaged ({len(problems)} problem(s)); nothing was done:\n  {listed}\n"
+                           f"Run `surrol-data validate {root}` for the full check, `surrol-data repair {root}` "
+                           "to keep its intact episodes.")
