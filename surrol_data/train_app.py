@@ -4,6 +4,7 @@
     surrol-data train -m seed=0,1,2,3 demos=script,novice,expert       # local parallel sweep (joblib)
     surrol-data train -m hydra/launcher=slurm seed=0,1,2                # the same sweep on SLURM (submitit)
     surrol-data train resume=true ...same overrides...                  # continue a killed run
+    surrol-data train -m batched=true seed=0,1,2,3 demos=script,novice,expert   # the sweep as one batched ensemble
 
 Where the configs are: the repository's ``configs/`` folder, found next to the package of a source checkout
 (the project is installed editable from its clone, ``uv sync``'s default). A different folder can be
@@ -14,6 +15,7 @@ at first.
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import sys
@@ -143,12 +145,48 @@ def _print_sweep_report(path: Path) -> int:
     return sum(r["status"] != "ok" for r in rows)
 
 
+def sweep_jobs(overrides: list[str]) -> list[list[str]]:
+    """The override lists of every job of a Hydra basic sweep (``seed=0,1 demos=a,b`` -> 4 jobs)."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    axes = [[f"{o.get_key_element()}={v}" for v in o.sweep_string_iterator()] if o.is_sweep_override()
+            else [o.input_line] for o in OverridesParser.create().parse_overrides(overrides)]
+    return [list(job) for job in itertools.product(*axes)]
+
+
+def run_batched(overrides: list[str]) -> None:
+    """``batched=true``: every job of the sweep trained in this process as one ensemble
+    (:func:`surrol_data.algos.train_batched.train_batched`), each in its own run_dir."""
+    from hydra import compose, initialize_config_dir
+
+    from surrol_data.algos.train_batched import train_batched
+    from surrol_data.datasets.reader import DatasetError
+
+    overrides = [o for o in overrides if o not in ("-m", "--multirun")]
+    if any(o.startswith("-") for o in overrides):
+        raise SystemExit(f"error: batched=true takes config overrides only, not {[o for o in overrides if o[0] == '-']}")
+    with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
+        cfgs = [compose("config", overrides=job) for job in sweep_jobs(overrides)]
+    try:
+        runs = train_batched([to_train_config(c) for c in cfgs], overlap=bool(cfgs[0].batched_overlap),
+                             n_workers=int(cfgs[0].experiment.n_envs), progress=bool(cfgs[0].progress))
+    except (FileNotFoundError, ValueError, DatasetError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        raise SystemExit(2) from None
+    for cfg, rows in zip(cfgs, runs):
+        print(f"{cfg.run_dir}: final success {rows[-1]['success_rate']:.2f}")
+
+
 def main(argv: list[str] | None = None) -> None:
     """Run the Hydra app on ``argv`` (Hydra overrides and flags such as ``-m``, ``--cfg job``).
 
     A sweep (``-m``) runs every job even when some fail, then prints one table of all jobs and exits 1 if any
-    failed.
+    failed. ``batched=true`` trains every job of the sweep in this process as one ensemble instead.
     """
+    args = list(sys.argv[1:] if argv is None else argv)
+    if "batched=true" in args:
+        run_batched([a for a in args if a != "batched=true"])
+        return
     if argv is not None:
         sys.argv = ["surrol-data train", *argv]
     with tempfile.TemporaryDirectory(prefix="surrol_sweep_") as tmp:

@@ -50,6 +50,21 @@ class DDPGConfig:
     clip_obs: float = 200.0
     norm_eps: float = 0.01
     norm_clip: float = 5.0
+    # offline→online warm start (all 0: the paper-faithful DDPG+BC+HER). The untrained critic's gradient
+    # drags a BC-pre-trained actor off the demos in the first online epochs; these keep it on them:
+    critic_pretrain_steps: int = 0   # after BC: TD steps of the critic on demo batches, bootstrapping through π
+    actor_hold_updates: int = 0      # first online updates: the actor learns from the BC term only (no Q term)
+    q_ramp_updates: int = 0          # then the Q term's weight rises linearly from 0 to 1 over this many updates
+
+
+def q_term_scale(online_updates: int, config: DDPGConfig) -> float:
+    """Weight of the Q term in the actor loss at online update number ``online_updates`` (0-based)."""
+    u = online_updates - config.actor_hold_updates
+    if u < 0:
+        return 0.0
+    if config.q_ramp_updates <= 0:
+        return 1.0
+    return min(1.0, (u + 1) / config.q_ramp_updates)
 
 
 class DDPG:
@@ -68,6 +83,7 @@ class DDPG:
         self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr, fused=True)
         self.rng = np.random.default_rng(seed)  # batches and exploration noise; checkpointed
         self.uses_demos_in_loss = config.bc_weight > 0
+        self.online_updates = 0  # drives the actor hold / Q-term ramp; checkpointed
 
     # ------------------------------------------------------------------ acting
     def act(self, obs: dict, explore: bool) -> np.ndarray:
@@ -103,20 +119,31 @@ class DDPG:
     def finish_pretraining(self) -> None:
         self.actor_target.load_state_dict(self.actor.state_dict())
 
+    def pretrain_critic_step(self, demos: EpisodeReplay) -> float:
+        """Offline critic warm-up: a TD step on a demo batch, bootstrapping through the pre-trained actor."""
+        loss, _ = self._critic_step(self._tensors(demos.sample(self.config.demo_batch_size, self.rng)))
+        soft_update(self.critic_target, self.critic, self.config.tau)
+        return loss
+
     def update(self, replay: EpisodeReplay, demos: EpisodeReplay | None) -> dict[str, float]:
         cfg = self.config
         # 1. replay batch
+        scale = q_term_scale(self.online_updates, cfg)
         batch = self._tensors(replay.sample(cfg.batch_size, self.rng))
         critic_loss, q = self._critic_step(batch)
-        metrics = {"critic_loss": critic_loss, "q": q, "actor_loss": self._actor_step(batch)["actor_loss"]}
+        metrics = {"critic_loss": critic_loss, "q": q}
+        if scale > 0:  # while the actor is held, the replay batch trains the critic only
+            metrics["actor_loss"] = self._actor_step(batch, scale)["actor_loss"]
         # 2. demo batch
         if demos is not None and self.uses_demos_in_loss:
             demo_batch = self._tensors(demos.sample(cfg.demo_batch_size, self.rng))
             self._critic_step(demo_batch)
-            metrics.update({k: v for k, v in self._actor_step(demo_batch, bc=True).items() if k != "actor_loss"})
+            metrics.update({k: v for k, v in self._actor_step(demo_batch, scale, bc=True).items()
+                            if k != "actor_loss"})
         # 3. targets
         soft_update(self.actor_target, self.actor, cfg.tau)
         soft_update(self.critic_target, self.critic, cfg.tau)
+        self.online_updates += 1
         return metrics
 
     def _tensors(self, b: dict) -> dict[str, torch.Tensor]:
@@ -137,13 +164,18 @@ class DDPG:
         self.critic_opt.step()
         return loss.item(), q.mean().item()
 
-    def _actor_step(self, b: dict[str, torch.Tensor], bc: bool = False) -> dict[str, float]:
+    def _actor_step(self, b: dict[str, torch.Tensor], q_scale: float = 1.0, bc: bool = False) -> dict[str, float]:
         cfg = self.config
         pi = self.actor(b["o"], b["g"])
-        # the critic is a fixed function here: skipping its weight gradients saves a third of the backward pass
-        self.critic.requires_grad_(False)
-        objective = self.critic(b["o"], b["g"], pi)
-        self.critic.requires_grad_(True)
+        if q_scale > 0:
+            # the critic is a fixed function here: skipping its weight gradients saves a third of the backward pass
+            self.critic.requires_grad_(False)
+            objective = self.critic(b["o"], b["g"], pi)
+            self.critic.requires_grad_(True)
+            if q_scale != 1.0:
+                objective = q_scale * objective
+        else:
+            objective = torch.zeros(pi.shape[:-1])
         out = {}
         if bc:
             per_sample_bc = (pi - b["a"]).pow(2).sum(-1) / self.act_dim
@@ -166,11 +198,12 @@ class DDPG:
         return {"inputs": self.inputs.state_dict(), "actor": self.actor.state_dict(), "critic": self.critic.state_dict(),
                 "actor_target": self.actor_target.state_dict(), "critic_target": self.critic_target.state_dict(),
                 "actor_opt": self.actor_opt.state_dict(), "critic_opt": self.critic_opt.state_dict(),
-                "rng": rng_state_tensor(self.rng)}
+                "rng": rng_state_tensor(self.rng), "online_updates": self.online_updates}
 
     def load_state_dict(self, state: dict) -> None:
         self.inputs.load_state_dict(state["inputs"])
         for name in ("actor", "critic", "actor_target", "critic_target", "actor_opt", "critic_opt"):
             getattr(self, name).load_state_dict(state[name])
         self.rng = rng_from_tensor(state["rng"])
+        self.online_updates = int(state.get("online_updates", 0))
 

@@ -277,7 +277,12 @@ def train(cfg: TrainConfig) -> list[dict]:
             t0 = time.perf_counter()
             losses = [learner.pretrain_step(demo_buffer) for _ in range(s.offline_steps)] if demo_buffer else []
             learner.finish_pretraining()
-            finish_epoch({"bc_loss": float(np.mean(losses)) if losses else float("nan")}, t0)
+            extra = {"bc_loss": float(np.mean(losses)) if losses else float("nan")}
+            critic_steps = getattr(learner.config, "critic_pretrain_steps", 0) if demo_buffer else 0
+            if critic_steps:  # offline→online warm start: the critic learns the pre-trained actor's values
+                critic_losses = [learner.pretrain_critic_step(demo_buffer) for _ in range(critic_steps)]
+                extra["critic_pretrain_loss"] = float(np.mean(critic_losses[-100:]))
+            finish_epoch(extra, t0)
 
         # 3. epochs
         if s.online:

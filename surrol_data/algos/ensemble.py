@@ -1,0 +1,275 @@
+"""DDPG(+BC)+HER for several runs at once: M members' networks stacked, one batched matmul per layer.
+
+Why: one 3×256 MLP update at batch 128 is too small to keep a core busy — most of a single run's update
+time is Python and per-call overhead (57 updates/s where the FLOPs allow several hundred). Stacking the
+weights of M runs into ``(M, out, in)`` tensors makes every layer one ``torch.baddbmm`` over all members,
+every optimiser step one fused Adam call and every target update one ``_foreach_lerp_``, so the overhead
+is paid once per update for all members.
+
+Each member is still its own run, exactly as :class:`~surrol_data.algos.ddpg.DDPG` would be:
+
+* initial weights: member i is built by ``DDPG(..., seed=seeds[i])`` and its weights copied in;
+* its own normalisers (``inputs[i]``) and its own generator (``rngs[i]``), drawn in the same order as a
+  single run draws (replay batch, then demo batch), so a member samples the very batches its single run
+  would sample;
+* losses are summed over members of per-member means: the gradient of member i is its own loss's
+  gradient, and Adam is elementwise, so the stacked optimiser is M independent optimisers;
+* :meth:`member_state_dict` / :meth:`load_member_state_dict` speak the single run's ``DDPG.state_dict``
+  format, so a member's checkpoint is an ordinary run checkpoint.
+
+What differs from M single runs is floating-point rounding only (batched vs plain matmul kernels).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from surrol_data.algos.bc import BCConfig, BCPolicy
+from surrol_data.algos.ddpg import DDPG, DDPGConfig, q_term_scale
+from surrol_data.algos.networks import DeterministicActor
+from surrol_data.algos.replay import EpisodeReplay, rng_from_tensor, rng_state_tensor
+
+
+class StackedMLP(nn.Module):
+    """M copies of one :func:`~surrol_data.algos.networks.mlp` architecture, evaluated on ``(M, B, in)`` inputs.
+
+    Parameters are ordered as ``nn.Sequential.parameters()`` orders a single MLP's (w0, b0, w1, b1, …), each
+    with a leading member dimension, so optimiser states convert one-to-one.
+    """
+
+    def __init__(self, members: list[nn.Sequential]):
+        super().__init__()
+        per_member = [[layer for layer in seq if isinstance(layer, nn.Linear)] for seq in members]
+        self.n_layers = len(per_member[0])
+        # index k of a Linear inside the Sequential (Linear, ReLU, Linear, …): 2k
+        params = []
+        for k in range(self.n_layers):
+            params.append(nn.Parameter(torch.stack([m[k].weight.detach().clone() for m in per_member])))
+            params.append(nn.Parameter(torch.stack([m[k].bias.detach().clone() for m in per_member])))
+        self.params = nn.ParameterList(params)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        for k in range(self.n_layers):
+            w, b = self.params[2 * k], self.params[2 * k + 1]
+            x = torch.baddbmm(b.unsqueeze(1), x, w.transpose(1, 2))
+            if k < self.n_layers - 1:
+                x = torch.relu(x)
+        return x
+
+    def member_state(self, i: int, prefix: str = "net.") -> dict[str, torch.Tensor]:
+        out = {}
+        for k in range(self.n_layers):
+            out[f"{prefix}{2 * k}.weight"] = self.params[2 * k][i].detach().clone()
+            out[f"{prefix}{2 * k}.bias"] = self.params[2 * k + 1][i].detach().clone()
+        return out
+
+    def load_member_state(self, i: int, state: dict[str, torch.Tensor], prefix: str = "net.") -> None:
+        with torch.no_grad():
+            for k in range(self.n_layers):
+                self.params[2 * k][i].copy_(state[f"{prefix}{2 * k}.weight"])
+                self.params[2 * k + 1][i].copy_(state[f"{prefix}{2 * k}.bias"])
+
+
+class EnsembleDDPG:
+    def __init__(self, obs_dim: int, goal_dim: int, act_dim: int, config: DDPGConfig, seeds: list[int]):
+        if not seeds:
+            raise ValueError("an ensemble needs at least one member seed")
+        self.config, self.act_dim, self.seeds = config, int(act_dim), list(seeds)
+        self.obs_dim, self.goal_dim = int(obs_dim), int(goal_dim)
+        singles = [DDPG(obs_dim, goal_dim, act_dim, config, seed=s) for s in seeds]  # the single runs' inits
+        self.inputs = [m.inputs for m in singles]
+        self.rngs = [m.rng for m in singles]
+        self.online_updates = [0] * len(seeds)
+        self.actor = StackedMLP([m.actor.net for m in singles])
+        self.critic = StackedMLP([m.critic.net for m in singles])
+        self.actor_target = StackedMLP([m.actor.net for m in singles])
+        self.critic_target = StackedMLP([m.critic.net for m in singles])
+        for net in (self.actor_target, self.critic_target):
+            net.requires_grad_(False)
+        self.actor_opt = torch.optim.Adam(self.actor.parameters(), lr=config.actor_lr, fused=True)
+        self.critic_opt = torch.optim.Adam(self.critic.parameters(), lr=config.critic_lr, fused=True)
+        self.uses_demos_in_loss = config.bc_weight > 0
+
+    def __len__(self) -> int:
+        return len(self.seeds)
+
+    # ------------------------------------------------------------------ networks on (M, B, ·)
+    def _pi(self, net: StackedMLP, o: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
+        return torch.tanh(net(torch.cat([o, g], -1)))
+
+    def _q(self, net: StackedMLP, o: torch.Tensor, g: torch.Tensor, a: torch.Tensor) -> torch.Tensor:
+        return net(torch.cat([o, g, a], -1)).squeeze(-1)
+
+    # ------------------------------------------------------------------ acting
+    def act(self, obs: list[dict], explore: bool, random_members: list[bool] | None = None) -> list:
+        """Actions of every member for its own batch of obs dicts (arrays (B, dim), same B for all)."""
+        o = torch.stack([torch.from_numpy(self.inputs[i].obs_norm.normalize(ob["observation"])) for i, ob in enumerate(obs)])
+        g = torch.stack([torch.from_numpy(self.inputs[i].goal_norm.normalize(ob["desired_goal"]))
+                         for i, ob in enumerate(obs)])
+        with torch.no_grad():
+            a = self._pi(self.actor, o, g).numpy()
+        out = []
+        cfg = self.config
+        for i in range(len(self)):
+            ai = a[i]
+            if explore:
+                rng = self.rngs[i]
+                ai = (ai + cfg.noise_eps * rng.standard_normal(ai.shape)).clip(-1.0, 1.0)
+                if cfg.random_eps > 0:
+                    random = rng.random(ai.shape[:-1]) < cfg.random_eps
+                    ai[random] = rng.uniform(-1.0, 1.0, (int(random.sum()), self.act_dim))
+            out.append(ai.astype("float32"))
+        return out
+
+    def policy(self, i: int) -> BCPolicy:
+        """Member i's deterministic actor as the stand-alone policy a single run saves."""
+        actor = DeterministicActor(self.obs_dim, self.goal_dim, self.act_dim, self.config.hidden_sizes)
+        actor.load_state_dict(self.actor.member_state(i))
+        import copy
+
+        return BCPolicy(actor, copy.deepcopy(self.inputs[i].obs_norm), copy.deepcopy(self.inputs[i].goal_norm),
+                        BCConfig(hidden_sizes=tuple(self.config.hidden_sizes)))
+
+    # ------------------------------------------------------------------ learning
+    def _batch(self, buffers: list[EpisodeReplay], size: int) -> dict[str, torch.Tensor]:
+        parts = []
+        for i, buf in enumerate(buffers):
+            b = buf.sample(size, self.rngs[i])
+            o, g = self.inputs[i](b["obs"], b["g"])
+            o2, _ = self.inputs[i](b["next_obs"], b["g"])
+            parts.append((o, g, o2, torch.from_numpy(b["action"]), torch.from_numpy(b["reward"])))
+        return {k: torch.stack([p[j] for p in parts]) for j, k in enumerate(("o", "g", "o2", "a", "r"))}
+
+    def pretrain_step(self, demos: list[EpisodeReplay]) -> list[float]:
+        """One BC step of every member's actor on its own demo batch."""
+        b = self._batch(demos, self.config.demo_batch_size)
+        per_member = (self._pi(self.actor, b["o"], b["g"]) - b["a"]).pow(2).mean((1, 2))
+        self.actor_opt.zero_grad(set_to_none=True)
+        per_member.sum().backward()
+        self.actor_opt.step()
+        return per_member.tolist()
+
+    def finish_pretraining(self) -> None:
+        with torch.no_grad():
+            for t, s in zip(self.actor_target.parameters(), self.actor.parameters()):
+                t.copy_(s)
+
+    def pretrain_critic_step(self, demos: list[EpisodeReplay]) -> list[float]:
+        """Offline critic warm-up: a TD step on a demo batch, bootstrapping through the pre-trained actor."""
+        b = self._batch(demos, self.config.demo_batch_size)
+        loss, _ = self._critic_step(b)
+        torch._foreach_lerp_(list(self.critic_target.parameters()), list(self.critic.parameters()), self.config.tau)
+        return loss.tolist()
+
+    def update(self, replays: list[EpisodeReplay], demos: list[EpisodeReplay] | None) -> list[dict[str, float]]:
+        """One update iteration of every member (DDPG.update's steps, batched); per-member metrics."""
+        cfg = self.config
+        with_demos = demos is not None and self.uses_demos_in_loss
+        # same draw order as DDPG.update: member i's replay batch, then its demo batch, from rngs[i]
+        batch = self._batch(replays, cfg.batch_size)
+        demo_batch = self._batch(demos, cfg.demo_batch_size) if with_demos else None
+        scale = q_term_scale(self.online_updates[0], cfg)  # members advance in lock step
+        critic_loss, q = self._critic_step(batch)
+        metrics = {"critic_loss": critic_loss, "q": q}
+        if scale > 0:
+            metrics["actor_loss"] = self._actor_step(batch, scale)["actor_loss"]
+        if with_demos:
+            self._critic_step(demo_batch)
+            metrics.update({k: v for k, v in self._actor_step(demo_batch, scale, bc=True).items()
+                            if k != "actor_loss"})
+        torch._foreach_lerp_(list(self.actor_target.parameters()), list(self.actor.parameters()), cfg.tau)
+        torch._foreach_lerp_(list(self.critic_target.parameters()), list(self.critic.parameters()), cfg.tau)
+        self.online_updates = [u + 1 for u in self.online_updates]
+        names = list(metrics)
+        values = torch.stack([metrics[k] for k in names], 1).tolist()
+        return [dict(zip(names, row)) for row in values]
+
+    def _critic_step(self, b: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
+        cfg = self.config
+        with torch.no_grad():
+            y = b["r"] + cfg.gamma * self._q(self.critic_target, b["o2"], b["g"],
+                                             self._pi(self.actor_target, b["o2"], b["g"]))
+            if cfg.clip_target:
+                y = y.clamp(-1.0 / (1.0 - cfg.gamma), 0.0)
+        q = self._q(self.critic, b["o"], b["g"], b["a"])
+        per_member = (q - y).pow(2).mean(1)
+        self.critic_opt.zero_grad(set_to_none=True)
+        per_member.sum().backward()
+        self.critic_opt.step()
+        return per_member.detach(), q.detach().mean(1)
+
+    def _actor_step(self, b: dict[str, torch.Tensor], q_scale: float, bc: bool = False) -> dict[str, torch.Tensor]:
+        cfg = self.config
+        pi = self._pi(self.actor, b["o"], b["g"])
+        out = {}
+        if q_scale > 0:
+            self.critic.requires_grad_(False)  # only the action gradient is needed, not the critic's weights'
+            objective = self._q(self.critic, b["o"], b["g"], pi)
+            self.critic.requires_grad_(True)
+            if q_scale != 1.0:
+                objective = q_scale * objective
+        else:
+            objective = torch.zeros(pi.shape[:-1])
+        if bc:
+            per_sample_bc = (pi - b["a"]).pow(2).sum(-1) / self.act_dim
+            if cfg.q_filter:
+                with torch.no_grad():
+                    mask = (self._q(self.critic_target, b["o"], b["g"], b["a"])
+                            >= self._q(self.critic_target, b["o"], b["g"], pi.detach())).float()
+            else:
+                mask = torch.ones_like(per_sample_bc)
+            objective = objective - cfg.bc_weight * mask * per_sample_bc
+            out = {"bc_loss": per_sample_bc.detach().mean(1), "q_filter_pass": mask.mean(1)}
+        per_member = -objective.mean(1) + cfg.action_l2 * pi.pow(2).mean((1, 2))
+        self.actor_opt.zero_grad(set_to_none=True)
+        per_member.sum().backward()
+        self.actor_opt.step()
+        return {"actor_loss": per_member.detach(), **out}
+
+    # ------------------------------------------------------------------ checkpointing (single-run format)
+    def member_state_dict(self, i: int) -> dict:
+        return {"inputs": self.inputs[i].state_dict(),
+                "actor": self.actor.member_state(i), "critic": self.critic.member_state(i),
+                "actor_target": self.actor_target.member_state(i), "critic_target": self.critic_target.member_state(i),
+                "actor_opt": _member_opt_state(self.actor_opt, i), "critic_opt": _member_opt_state(self.critic_opt, i),
+                "rng": rng_state_tensor(self.rngs[i]), "online_updates": self.online_updates[i]}
+
+    def load_member_state_dict(self, i: int, state: dict) -> None:
+        self.inputs[i].load_state_dict(state["inputs"])
+        for name in ("actor", "critic", "actor_target", "critic_target"):
+            getattr(self, name).load_member_state(i, state[name])
+        _load_member_opt_state(self.actor_opt, i, state["actor_opt"])
+        _load_member_opt_state(self.critic_opt, i, state["critic_opt"])
+        self.rngs[i] = rng_from_tensor(state["rng"])
+        self.online_updates[i] = int(state.get("online_updates", 0))
+
+
+def _member_opt_state(opt: torch.optim.Adam, i: int) -> dict:
+    """Member i's slice of a stacked Adam, as ``torch.optim.Adam.state_dict()`` of its single run."""
+    params = opt.param_groups[0]["params"]
+    state = {}
+    for idx, p in enumerate(params):
+        s = opt.state.get(p)
+        if s:
+            state[idx] = {"step": s["step"].clone(), "exp_avg": s["exp_avg"][i].clone(),
+                          "exp_avg_sq": s["exp_avg_sq"][i].clone()}
+    group = {k: v for k, v in opt.param_groups[0].items() if k != "params"}
+    return {"state": state, "param_groups": [{**group, "params": list(range(len(params)))}]}
+
+
+def _load_member_opt_state(opt: torch.optim.Adam, i: int, saved: dict) -> None:
+    params = opt.param_groups[0]["params"]
+    for idx, p in enumerate(params):
+        s = saved["state"].get(idx)
+        if s is None:
+            continue
+        mine = opt.state[p]
+        if not mine:
+            mine["step"] = torch.zeros((), dtype=torch.float32)
+            mine["exp_avg"] = torch.zeros_like(p)
+            mine["exp_avg_sq"] = torch.zeros_like(p)
+        # members advance in lock step, so every member's Adam step count is the same
+        mine["step"].copy_(s["step"])
+        mine["exp_avg"][i].copy_(s["exp_avg"])
+        mine["exp_avg_sq"][i].copy_(s["exp_avg_sq"])
