@@ -53,10 +53,20 @@ def offscreen_pipe():
     return pipe
 
 
+@functools.cache
 def unavailable_reason() -> str | None:
     """None when Panda3D can render offscreen here, else why not (for test skips and CLI errors)."""
     try:
-        offscreen_pipe()
+        pipe = offscreen_pipe()
+        from panda3d.core import FrameBufferProperties, GraphicsEngine, GraphicsPipe, WindowProperties
+
+        engine = GraphicsEngine(pipe)
+        buffer = engine.make_output(pipe, "probe", 0, FrameBufferProperties.get_default(),
+                                    WindowProperties.size(8, 8), GraphicsPipe.BF_refuse_window)
+        if buffer is None:
+            raise RendererUnavailable(f"Panda3D could not open an offscreen OpenGL buffer through EGL; install "
+                                      f"`apt-get install {GL_PACKAGES}`, or use camera_renderer='tiny'")
+        engine.remove_all_windows()
     except (RendererUnavailable, ImportError) as e:
         return str(e)
     return None

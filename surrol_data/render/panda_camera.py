@@ -59,6 +59,7 @@ class PandaEndoscopeCamera:
         cam_node.set_initial_state(flat)
         cam_node.set_tag_state_key(SEGMENTATION_TAG)
         self._tagged: set[int] = set()
+        self._drawn = False
 
     def _buffer(self, pipe, name: str, multisamples: int, colour: Texture, depth: Texture | None):
         fbp = FrameBufferProperties()
@@ -68,11 +69,19 @@ class PandaEndoscopeCamera:
         fbp.set_multisamples(multisamples)
         props = WindowProperties.size(self.width, self.height)
         flags = GraphicsPipe.BF_refuse_window
-        buf = self.engine.make_output(pipe, name, 0, fbp, props, flags)
+        # Both buffers share one OpenGL context (textures and shaders are prepared once).
+        host = getattr(self, "_colour", None)
+        if host is None:
+            buf = self.engine.make_output(pipe, name, 0, fbp, props, flags)
+        else:
+            buf = self.engine.make_output(pipe, name, 0, fbp, props, flags, host.get_gsg(), host)
         if buf is None:
             raise RendererUnavailable(f"Panda3D could not open a {self.width}×{self.height} offscreen buffer "
                                       f"({multisamples}× MSAA); try multisamples=0")
-        buf.add_render_texture(colour, GraphicsOutput.RTM_copy_ram, GraphicsOutput.RTP_color)
+        # A multisampled buffer is resolved into its texture only when the texture is bound (not by
+        # RTM_copy_ram, which reads one sample), so colour is bound and read back after the frame.
+        mode = GraphicsOutput.RTM_bind_or_copy if multisamples else GraphicsOutput.RTM_copy_ram
+        buf.add_render_texture(colour, mode, GraphicsOutput.RTP_color)
         if depth is not None:
             buf.add_render_texture(depth, GraphicsOutput.RTM_copy_ram, GraphicsOutput.RTP_depth)
         buf.set_clear_color_active(True)
@@ -95,6 +104,11 @@ class PandaEndoscopeCamera:
             self.stage.place_camera(self._ids_cam)
         self._ids.set_active(need_ids)
         self.engine.render_frame()
+        if not self._drawn:
+            # The first frame creates the light's shadow buffer, which is drawn from the next frame on.
+            self.engine.render_frame()
+            self._drawn = True
+        self.engine.extract_texture_data(self._color_tex, self._colour.get_gsg())
         rgb = self._rgb(self._color_tex)
         depth_m = seg = None
         if need_ids:

@@ -6,7 +6,7 @@ One stage serves any number of cameras (the offscreen observation camera, the GU
 
 from __future__ import annotations
 
-from panda3d.core import NodePath, PerspectiveLens, Point3, Vec3
+from panda3d.core import AntialiasAttrib, NodePath, PerspectiveLens, Point3, Vec3
 
 from surrol_data.envs.camera import FAR_M, FOV_DEG, NEAR_M, TAN_HALF_FOV, camera_axes
 from surrol_data.render.endoscope_light import MAX_EXPOSURE_DISTANCE_M, EndoscopeLight
@@ -33,6 +33,7 @@ class EndoscopeStage:
         # Per-pixel Phong lighting, shadow map and texture modulation (see phong_shader for why not the
         # auto shader).
         self.root.set_shader(phong_shader())
+        self.root.set_antialias(AntialiasAttrib.M_multisample)
         self.root.set_shader_input("u_shadows", 1.0 if shadows else 0.0)
         self.mirror = SceneMirror(client, self.root, scene_scale)
         self.light = EndoscopeLight(self.root, shadows=shadows)
