@@ -8,8 +8,8 @@ One session = one env, one or two devices (one per PSM arm), one dataset. Per at
    ``env.step(action)`` — paced to the control period for human devices, as fast as possible for the
    simulated operator and replays. The first frame of an attempt is the reference (zero motion);
 3. the attempt ends ``STEPS_AFTER_SUCCESS`` steps after the first success (so the demo shows the goal held),
-   at the horizon, when a replay's trace ends, or when the operator redoes / discards it (keys ``r`` / ``f``
-   in the terminal or the GUI window; ``Esc`` ends the session);
+   at the horizon, when a replay's trace ends, when the operator redoes / discards it (keys ``r`` / ``f``
+   in the terminal or the GUI window; ``Esc`` ends the session), or saves it as it stands (``Enter``);
 4. a success (or any attempt with ``keep_failures``) is recorded with provenance and its device trace
    (:mod:`surrol_data.collect.devices.trace`).
 
@@ -75,7 +75,8 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
                    keep_failures: bool = False, append: bool = False, gui: bool | None = None,
                    rerun_live: str | None = None, max_attempts: int | None = None, progress: bool = True,
                    command: str | None = None, library: str | Path | None = None,
-                   realtime: bool | None = None) -> HapticResult:
+                   realtime: bool | None = None, key_tracker=None, on_step=None,
+                   env_kwargs: dict | None = None) -> HapticResult:
     """Record ``episodes`` kept teleoperated episodes of ``task`` into the dataset at ``out``.
 
     ``device``: a name of :data:`surrol_data.collect.devices.DEVICE_NAMES` (one device per arm is built with
@@ -85,7 +86,9 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
     display exists and the device is a human one). ``rerun_live``: ``"spawn"`` (start a viewer), a
     ``rerun+http://`` URL, or an ``.rrd`` path to stream the session to. ``max_attempts``: stop after that
     many finished attempts (default 3 × episodes). ``realtime``: pace steps to the control period (default:
-    for human devices only).
+    for human devices only). ``key_tracker``: the key source of a host window (the training GUI) for keyboard
+    devices and the session keys. ``on_step(step, obs, info, flags)``: called after every env step (``step``
+    counts from 1 in each attempt), e.g. to draw a frame. ``env_kwargs``: extra ``gym.make`` arguments.
     """
     if episodes <= 0:
         raise ValueError(f"--episodes must be positive, got {episodes}")
@@ -107,11 +110,11 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
     registered = gym.spec(eid).max_episode_steps
     replay_horizon = _replay_horizon(trace) if names == ["replay"] else None
     horizon = max_steps or replay_horizon or HUMAN_HORIZON_FACTOR * registered
-    env = gym.make(eid, max_episode_steps=horizon, **({"render_mode": "human"} if gui else {}))
+    env = gym.make(eid, max_episode_steps=horizon, **({"render_mode": "human"} if gui else {}), **(env_kwargs or {}))
     try:
         return _Session(env, eid, episodes, out, device, names, operator_id, skill, sides, mapping, trace, seed,
                         horizon, keep_failures, append, gui, rerun_live, max_attempts or 3 * episodes, progress,
-                        command, library, realtime).run()
+                        command, library, realtime, key_tracker, on_step).run()
     finally:
         env.close()
 
@@ -156,12 +159,12 @@ class _Session:
 
     def __init__(self, env, eid, episodes, out, device, names, operator_id, skill, sides, mapping, trace, seed,
                  horizon, keep_failures, append, gui, rerun_live, max_attempts, progress, command, library,
-                 realtime):
+                 realtime, key_tracker=None, on_step=None):
         self.env, self.eid, self.episodes, self.out = env, eid, episodes, Path(out)
         self.task = eid.split("/")[1].rsplit("-v", 1)[0]
         self.operator_id, self.skill, self.seed, self.horizon = operator_id, skill, seed, horizon
         self.keep_failures, self.max_attempts, self.progress = keep_failures, max_attempts, progress
-        self.gui, self.command = gui, command
+        self.gui, self.command, self.on_step = gui, command, on_step
         act_dim = env.action_space.shape[0]
         self.ecm_only = act_dim % 5 != 0   # ECM tasks: a 1-, 3- or 4-D camera action, one device
         n_devices = 1 if self.ecm_only else act_dim // 5
@@ -181,8 +184,8 @@ class _Session:
 
         # Ready-made keyboard devices bring their key source; the session keys are read from the same one.
         given = [] if isinstance(device, str) else list(device)
-        self.key_tracker = next((d.tracker for d in given if getattr(d, "tracker", None) is not None), None) \
-            or self._key_tracker(names)
+        self.key_tracker = key_tracker or next((d.tracker for d in given if getattr(d, "tracker", None) is not None),
+                                               None) or self._key_tracker(names)
         if isinstance(device, str):
             self.devices = [open_device(device, arm=i, side=sides[i], env=env.unwrapped, mapping=self.mappings[i],
                                         skill=skill, operator_id=operator_id, seed=seed, trace=trace,
@@ -230,8 +233,8 @@ class _Session:
                 if self.key_tracker is not None:
                     self.key_tracker.start()
                     if self.realtime:
-                        tqdm.write("keys: r = redo this attempt, f = discard it, Esc = end the session "
-                                   "(Ctrl-C in a terminal)")
+                        tqdm.write("keys: r = redo this attempt, f = discard it, Enter = save it as it stands, "
+                                   "Esc = end the session (Ctrl-C in a terminal)")
                 while res.kept < target and res.attempts < self.max_attempts:
                     replayed = None
                     if self.replay:   # trace i holds attempt i's seed, mapping and operator
@@ -294,7 +297,10 @@ class _Session:
                 if delay > 0:
                     time.sleep(delay)
             command = self._session_command()
-            if command is not None:
+            if command == "save":
+                if k > 0:   # end the attempt here and record it as it stands
+                    break
+            elif command is not None:
                 return command, None, None
             if self.replay and any(d.exhausted for d in self.devices):
                 break
@@ -311,6 +317,8 @@ class _Session:
                         flags=flags)
             if self.live:
                 self.live.step(k, obs, action, info, flags)
+            if self.on_step is not None:
+                self.on_step(k + 1, obs, info, flags)
             if info["is_success"] and after_success is None:
                 after_success = STEPS_AFTER_SUCCESS
             elif after_success is not None:
@@ -337,11 +345,11 @@ class _Session:
     def _session_command(self) -> str | None:
         if self.key_tracker is None:
             return None
-        from surrol_data.collect.devices.keyboard import DISCARD_KEY, QUIT_KEY, REDO_KEY
+        from surrol_data.collect.devices.keyboard import DISCARD_KEY, QUIT_KEY, REDO_KEY, SAVE_KEY
 
         self.key_tracker.update()
         pressed = self.key_tracker.pop_pressed()
-        for key, command in ((QUIT_KEY, "quit"), (REDO_KEY, "redo"), (DISCARD_KEY, "discard")):
+        for key, command in ((QUIT_KEY, "quit"), (REDO_KEY, "redo"), (DISCARD_KEY, "discard"), (SAVE_KEY, "save")):
             if key in pressed:
                 return command
         return None

@@ -122,7 +122,8 @@ class BimanualEnv(PsmEnv):
         physics.configure(self.client)
         self._build_world()
         if self.endoscope is not None:   # the camera=True option's still ECM went with the old world
-            self.endoscope = SceneEndoscope(self.client, self.endoscope.size, scene_scale=SCALING)
+            self.endoscope = SceneEndoscope(self.client, self.endoscope.size, scene_scale=SCALING,
+                                            camera=self.endoscope.camera)
         starts = self.reset_task(self.np_random)
         for i, (psm, start) in enumerate(zip(self.psms, starts)):
             pose = kin.pose_from(start.tip, self._tool_rotation(i, start.angle))

@@ -121,3 +121,18 @@ def _checked_size(size) -> tuple[int, int]:
         raise ValueError(f"camera_size must be between 8 and 2048 pixels per side, got {size!r}; "
                          "(128, 128) is the default, (256, 256) the reference's")
     return width, height
+
+
+CAMERA_RENDERERS = ("tiny", "panda3d")
+
+
+def make_camera(client, size: tuple[int, int] = (128, 128), scene_scale: float = 1.0, renderer: str = "tiny"):
+    """The endoscope camera drawn by ``renderer``: ``"tiny"`` (PyBullet's CPU TinyRenderer, no set-up) or
+    ``"panda3d"`` (spotlight, shadows, anti-aliasing; :mod:`surrol_data.render`, imported only here)."""
+    if renderer == "tiny":
+        return EndoscopeCamera(client, size, scene_scale=scene_scale)
+    if renderer == "panda3d":
+        from surrol_data.render.panda_camera import PandaEndoscopeCamera
+
+        return PandaEndoscopeCamera(client, size, scene_scale=scene_scale)
+    raise ValueError(f"camera_renderer must be one of {', '.join(CAMERA_RENDERERS)}, got {renderer!r}")

@@ -20,7 +20,7 @@ from surrol_data.envs.physics import pb  # physics imports pybullet quietly
 from surrol_data.envs import ecm_kinematics as ekin
 from surrol_data.envs import kinematics as psm_kin
 from surrol_data.envs import physics
-from surrol_data.envs.camera import EndoscopeCamera, camera_axes
+from surrol_data.envs.camera import EndoscopeCamera, camera_axes, make_camera
 from surrol_data.envs.psm import matrix_to_quat
 
 # ECM base (URDF base link) → RCM: 0.6126 m forward, 0.1016 m up, turned −90° about z (the reference's URDF).
@@ -168,11 +168,13 @@ class SceneEndoscope:
     ``SceneEndoscope(client, camera_size, scene_scale=SCALING)`` then ``.image()`` in its observation."""
 
     def __init__(self, client, size: tuple[int, int] = (128, 128), scene_scale: float = 1.0,
-                 base_position=PSM_SCENE_BASE_POSITION, joints=PSM_SCENE_JOINTS):
+                 base_position=PSM_SCENE_BASE_POSITION, joints=PSM_SCENE_JOINTS, renderer: str = "tiny",
+                 camera=None):
         self.ecm = Ecm(world_T_rcm_from_base(base_position), client=client, scene_scale=scene_scale, visual=True)
         self.ecm.reset_joints(joints)
         self.ecm.sync_visual()
-        self.camera = EndoscopeCamera(client, size, scene_scale=scene_scale)
+        # ``camera``: keep an existing camera of this client (a rebuilt world need not rebuild its renderer).
+        self.camera = camera or make_camera(client, size, scene_scale=scene_scale, renderer=renderer)
 
     @property
     def size(self) -> tuple[int, int]:

@@ -22,7 +22,7 @@ from gymnasium import spaces
 
 from surrol_data.envs import ecm_kinematics as ekin
 from surrol_data.envs import physics
-from surrol_data.envs.camera import EndoscopeCamera
+from surrol_data.envs.camera import EndoscopeCamera, make_camera
 from surrol_data.envs.ecm import ECM_TASK_BASE_PITCH_RAD, ECM_TASK_BASE_POSITION, Ecm, world_T_rcm_from_base
 from surrol_data.envs.physics import pb
 
@@ -60,7 +60,7 @@ class EcmEnv(gym.Env):
     SUBSTEPS = physics.ECM_SUBSTEPS          # motor steps per env step (0.1 s)
 
     def __init__(self, render_mode: str | None = None, render_size: tuple[int, int] = (480, 360),
-                 camera: bool = False, camera_size: tuple[int, int] = (128, 128)):
+                 camera: bool = False, camera_size: tuple[int, int] = (128, 128), camera_renderer: str = "tiny"):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
         self.render_mode = render_mode
@@ -72,7 +72,8 @@ class EcmEnv(gym.Env):
             visual=self.visual)
         self.ecm = Ecm(world_T_rcm_from_base(ECM_TASK_BASE_POSITION, ECM_TASK_BASE_PITCH_RAD),
                        client=self.client, visual=self.visual)
-        self.camera = EndoscopeCamera(self.client, camera_size) if camera else None
+        # camera_renderer: "tiny" (PyBullet's TinyRenderer) or "panda3d" (spotlight, shadows, anti-aliasing).
+        self.camera = make_camera(self.client, camera_size, renderer=camera_renderer) if camera else None
         self.goal = np.zeros(self.GOAL_DIM)
         self._goal32 = float32(self.goal)
         self.build_scene()

@@ -59,7 +59,7 @@ class PsmEnv(gym.Env):
     OBSERVATION_DIM = 0       # 0: 19 with object terms, else 7; the bimanual base sets 35
 
     def __init__(self, render_mode: str | None = None, render_size: tuple[int, int] = (480, 360),
-                 camera: bool = False, camera_size: tuple[int, int] = (128, 128)):
+                 camera: bool = False, camera_size: tuple[int, int] = (128, 128), camera_renderer: str = "tiny"):
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
         self.render_mode = render_mode
@@ -69,7 +69,9 @@ class PsmEnv(gym.Env):
         self.client = physics.make_client(gui=render_mode == "human")
         self._build_world()
         # camera=True: a still, non-colliding ECM over the scene whose endoscope image joins the observation.
-        self.endoscope = SceneEndoscope(self.client, camera_size, scene_scale=SCALING) if camera else None
+        # camera_renderer: "tiny" (PyBullet's TinyRenderer) or "panda3d" (spotlight, shadows, anti-aliasing).
+        self.endoscope = SceneEndoscope(self.client, camera_size, scene_scale=SCALING,
+                                        renderer=camera_renderer) if camera else None
         self._tip = np.eye(4)
         self.goal = np.zeros(3)
         self._waypoints: list[dict] = []

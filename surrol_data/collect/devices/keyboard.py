@@ -51,8 +51,8 @@ LAYOUTS = {
                                "u": (2, 1.0), "o": (2, -1.0)},
                        turn={"m": 1.0, ",": -1.0}, jaw="n", clutch="b"),
 }
-REDO_KEY, DISCARD_KEY, QUIT_KEY = "r", "f", "esc"
-SESSION_KEYS = (REDO_KEY, DISCARD_KEY, QUIT_KEY)
+REDO_KEY, DISCARD_KEY, QUIT_KEY, SAVE_KEY = "r", "f", "esc", "enter"
+SESSION_KEYS = (REDO_KEY, DISCARD_KEY, QUIT_KEY, SAVE_KEY)
 _ESCAPES = {"\x1b[A": "up", "\x1b[B": "down", "\x1b[C": "right", "\x1b[D": "left"}
 
 
@@ -104,6 +104,9 @@ def _split_keys(text: str) -> list[str]:
         elif text[i] == "\x1b":
             keys.append("esc")
             i += 1
+        elif text[i] in "\r\n":
+            keys.append("enter")
+            i += 1
         else:
             keys.append(text[i].lower())
             i += 1
@@ -114,7 +117,7 @@ class PyBulletKeys:
     """Keys of the PyBullet GUI window (``client.getKeyboardEvents``: key code -> state bits)."""
 
     KEY_IS_DOWN, KEY_WAS_TRIGGERED, KEY_WAS_RELEASED = 1, 2, 4   # pybullet's state bits
-    _SPECIAL = {27: "esc"}
+    _SPECIAL = {27: "esc", 65309: "enter"}   # 65309: pybullet's B3G_RETURN
 
     def __init__(self, client):
         self.client = client
