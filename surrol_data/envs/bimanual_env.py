@@ -158,8 +158,7 @@ class BimanualEnv(PsmEnv):
 
     # ------------------------------------------------------------------ internals
     def simulate(self, steps: int) -> None:
-        for _ in range(steps):
-            self.client.stepSimulation()
+        self._step_physics(steps)
         self._tips = [psm.tip_pose() for psm in self.psms]
 
     def tip_pose(self, arm: int = 0) -> np.ndarray:

@@ -57,6 +57,9 @@ class PsmEnv(gym.Env):
     ORACLE_GAIN = 0.4
     ACTION_DIM = 5            # per arm 5; the bimanual base sets 10
     OBSERVATION_DIM = 0       # 0: 19 with object terms, else 7; the bimanual base sets 35
+    # Instrumentation: when set (on an instance), called as ``substep_hook(env)`` after every physics substep
+    # (benchmarks/physics_realism.py probes contacts there). Unset, it costs one attribute test per substep.
+    substep_hook = None
 
     def __init__(self, render_mode: str | None = None, render_size: tuple[int, int] = (480, 360),
                  camera: bool = False, camera_size: tuple[int, int] = (128, 128), camera_renderer: str = "tiny"):
@@ -190,9 +193,15 @@ class PsmEnv(gym.Env):
     # ------------------------------------------------------------------ internals
     def simulate(self, steps: int) -> None:
         """Advance the physics and refresh the cached tip pose (read by observation, action and oracle)."""
+        self._step_physics(steps)
+        self._tip = self.psm.tip_pose()
+
+    def _step_physics(self, steps: int) -> None:
+        hook = self.substep_hook
         for _ in range(steps):
             self.client.stepSimulation()
-        self._tip = self.psm.tip_pose()
+            if hook is not None:
+                hook(self)
 
     def tip_pose(self) -> np.ndarray:
         return self._tip
