@@ -71,6 +71,6 @@ def test_assess_and_report_commands(mixed_dataset, tmp_path):
     assert result.exit_code == 0, result.output
     assert "Expert benchmark" in result.output and (tmp_path / "a" / "assessment.png").is_file()
     missing = runner.invoke(app, ["report", str(tmp_path / "no_runs_here"), "--out", str(tmp_path / "r")])
-    assert missing.exit_code == 2 and "does not exist" in missing.output
+    assert missing.exit_code == 2 and "does not exist" in " ".join(missing.output.split())   # rich wraps lines
     bad = runner.invoke(app, ["report", str(tmp_path), "--out", str(tmp_path / "r"), "--epochs", "fifty"])
-    assert bad.exit_code == 2 and "--epochs takes whole numbers" in bad.output
+    assert bad.exit_code == 2 and "--epochs takes whole numbers" in " ".join(bad.output.split())
