@@ -137,10 +137,12 @@ def assess(dataset: Path = typer.Argument(..., help="Dataset folder."),
     """Demo proficiency per operator and skill, against the expert benchmark (proficiency-based progression)."""
     from rich.markdown import Markdown
 
+    from surrol_data.datasets.guard import require_valid
     from surrol_data.datasets.reader import DatasetError
     from surrol_data.evaluation.assess import assess_dataset, assessment_markdown, write_assessment
 
     try:
+        require_valid(dataset, _note)
         with console.status(f"scoring the episodes of {dataset} ..."):
             result = assess_dataset(dataset)
     except (DatasetError, ValueError, FileNotFoundError) as e:
@@ -167,9 +169,12 @@ def report(runs: list[Path] = typer.Argument(..., help="Training run folders, or
         at = [int(e) for e in epochs.split(",")] if epochs else None
     except ValueError:
         _fail(f"--epochs takes whole numbers separated by commas, e.g. 50,100; got {epochs!r}")
+    from surrol_data.datasets.guard import require_valid
+
     try:
         demo_rows = []
         for path in demos:
+            require_valid(path, _note)
             demo_rows += [{**row, "group": f"{path.name}: {row['group']}"}
                           for row in assess_dataset(path).skills.to_dict("records")]
         with console.status("writing the report ..."):
