@@ -117,18 +117,29 @@ def info(dataset: Path = typer.Argument(..., help="Dataset folder.")):
 def evaluate_cmd(task: str = typer.Option(..., help="Task name, e.g. NeedlePick."),
                  policy: str = typer.Option("oracle", help="'oracle' or the path of a BC checkpoint (.pt)."),
                  episodes: int = typer.Option(20, min=1),
-                 seed: int = typer.Option(0, help="Seed of the first episode; episode i uses seed + i."),
-                 max_steps: Optional[int] = typer.Option(None, min=1)):
-    """Run a policy for N seeded episodes and print its proficiency metrics."""
+                 seed: Optional[int] = typer.Option(None, help="Seed of the first episode; episode i uses seed + i "
+                                                               "(default: 1,000,000,000, never a demo's seed)."),
+                 max_steps: Optional[int] = typer.Option(None, min=1),
+                 out: Optional[Path] = typer.Option(None, help="JSON file recording task, policy, seeds, summary "
+                                                                "and every episode's metrics.")):
+    """Run a policy for N seeded episodes (unseen seeds by default) and print its proficiency metrics."""
+    import json
+
     from surrol_data.demo import print_summary
     from surrol_data.envs import env_id
-    from surrol_data.evaluation.rollout import evaluate
+    from surrol_data.evaluation.rollout import EVAL_SEED_BASE, evaluate
 
+    first = EVAL_SEED_BASE if seed is None else seed
     try:
-        result = evaluate(env_id(task), policy, episodes, seed=seed, max_steps=max_steps)
+        result = evaluate(env_id(task), policy, episodes, seed=first, max_steps=max_steps)
     except (ValueError, FileNotFoundError) as e:
         _fail(str(e))
     print_summary(console, {f"{policy} on {task}": result.summary})
+    console.print(f"seeds {first}..{first + episodes - 1}")
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(json.dumps(_nan_to_null(result.as_record(policy)), indent=2, allow_nan=False))
+        console.print(f"wrote {out}")
 
 
 @app.command()
@@ -322,6 +333,17 @@ def _arms(env) -> str:
 
 # ---------------------------------------------------------------- dataset tools (validate, merge, filter, split,
 # export, push): each writes a new dataset / file and keeps the per-episode provenance.
+
+def _nan_to_null(value):
+    """JSON has no NaN: a metric with no value (e.g. steps to complete when nothing succeeded) becomes null."""
+    if isinstance(value, dict):
+        return {k: _nan_to_null(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_nan_to_null(v) for v in value]
+    if isinstance(value, float) and value != value:
+        return None
+    return value
+
 
 def _this_command() -> str:
     return shlex.join(["surrol-data", *sys.argv[1:]])

@@ -17,7 +17,6 @@ from rich.table import Table
 DEMO_TASK = "NeedlePick"
 DEMO_EPISODES = 20
 EVAL_EPISODES = 20
-EVAL_SEED = 10_000   # evaluation seeds never overlap the demo seeds
 
 
 @dataclass
@@ -56,6 +55,7 @@ def run_demo(out: str | Path | None = None, episodes: int = DEMO_EPISODES, eval_
 
     console.rule(f"[bold]3/4 evaluate oracle and BC on {eval_episodes} unseen seeds")
     from surrol_data.envs import env_id
+    from surrol_data.evaluation.rollout import EVAL_SEED_BASE as EVAL_SEED
     from surrol_data.evaluation.rollout import ORACLE, evaluate
 
     oracle = evaluate(env_id(DEMO_TASK), ORACLE, eval_episodes, seed=EVAL_SEED)
@@ -96,11 +96,17 @@ def _demo_summary(demos) -> dict:
     return summarize([trajectory_proficiency(t) for t in demos])
 
 
+def _cell(value: float, fmt: str) -> str:
+    """A table cell: ``–`` where a metric has no value (nothing succeeded), never ``nan``."""
+    return "–" if value != value else fmt.format(value)
+
+
 def print_summary(console: Console, summaries: dict) -> None:
     table = Table(title="proficiency (success at any step; steps and path over successful episodes)")
     for col in ("source", "episodes", "success", "final success", "steps to complete", "path length cm"):
         table.add_column(col, justify="right" if col != "source" else "left")
     for name, s in summaries.items():
-        table.add_row(name, str(s["episodes"]), f"{s['success_rate']:.0%}", f"{s['final_success_rate']:.0%}",
-                      f"{s['mean_steps_to_success']:.1f}", f"{s['mean_path_length_cm']:.1f}")
+        table.add_row(name, str(s["episodes"]), _cell(s["success_rate"], "{:.0%}"),
+                      _cell(s["final_success_rate"], "{:.0%}"), _cell(s["mean_steps_to_success"], "{:.1f}"),
+                      _cell(s["mean_path_length_cm"], "{:.1f}"))
     console.print(table)

@@ -42,11 +42,10 @@ from surrol_data.algos.demos import DemoSpec, load_demos
 from surrol_data.algos.replay import EpisodeReplay, rng_from_tensor, rng_state_tensor
 from surrol_data.algos.sac import SAC, SACConfig
 from surrol_data.evaluation.metrics import summarize, trajectory_proficiency
-from surrol_data.evaluation.rollout import rollout
+from surrol_data.evaluation.rollout import EVAL_SEED_BASE, rollout
 
 CHECKPOINT_FORMAT = "surrol_data.train/1"
 LEARNERS = {"ddpg": (DDPG, DDPGConfig), "sac": (SAC, SACConfig)}
-EVAL_SEED_BASE = 1_000_000_000   # evaluation episodes never share a seed with training episodes
 TRAIN_SEED_STRIDE = 1_000_000    # run seed s trains on episode seeds s·stride, s·stride + 1, …
 
 

@@ -60,6 +60,11 @@ def rollout(env: gym.Env, policy: Policy | str, seed: int, max_steps: int | None
     return builder.build()
 
 
+# Evaluation seeds start here: collectors number demo episodes from 0 (and --append continues the sequence), so a
+# policy is never scored on an episode it may have seen as a demonstration. Training evaluation uses the same base.
+EVAL_SEED_BASE = 1_000_000_000
+
+
 @dataclass
 class EvalResult:
     env_id: str
@@ -68,8 +73,14 @@ class EvalResult:
     summary: dict
     trajectories: list[Trajectory] = field(default_factory=list)  # empty unless asked for
 
+    def as_record(self, policy: str) -> dict:
+        """What an evaluation file records: task, policy, seeds, the summary and every episode's metrics."""
+        task = self.env_id.split("/")[-1].rsplit("-v", 1)[0]
+        return {"task": task, "env_id": self.env_id, "policy": policy, "seeds": list(self.seeds),
+                "summary": self.summary, "episodes": [p.as_dict() for p in self.proficiency]}
 
-def evaluate(env_id: str, policy: Policy | str, episodes: int, seed: int = 0, max_steps: int | None = None,
+
+def evaluate(env_id: str, policy: Policy | str, episodes: int, seed: int = EVAL_SEED_BASE, max_steps: int | None = None,
              progress: bool = True, keep_trajectories: bool = False, env_kwargs: dict | None = None) -> EvalResult:
     """Roll ``policy`` out for ``episodes`` episodes with seeds ``seed, seed+1, …`` and score each one.
 
