@@ -16,7 +16,8 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-IGNORE_PATTERNS = ["images/*", ".surrol_data_repair/*", "*.tmp", "*.partial", ".cache/*"]
+IGNORE_PATTERNS = ["images/*", ".surrol_data_repair/*", ".surrol_data_journal/*", ".surrol_data.lock", "*.tmp",
+                   "*.partial", ".cache/*"]
 
 
 @dataclass
