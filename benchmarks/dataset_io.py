@@ -8,7 +8,8 @@ the rest of the surrol_data frame schema) with the real ``lerobot`` package, in 
 * ``lerobot add_frame``: ``LeRobotDataset.create`` + ``add_frame`` per frame + ``save_episode`` per episode +
   ``finalize``, nothing patched — measured first, because DatasetRecorder patches lerobot in-process.
 * ``DatasetRecorder``: whole episodes handed to lerobot's ``save_episode(episode_data=...)``, provenance
-  columns, checkpoints every 10 episodes (files closed so a SIGKILL loses at most 10 episodes), card.
+  columns, a journal entry per episode (a SIGKILL loses at most the episode in progress), checkpoints
+  every 10 episodes (files closed, journal emptied), card.
 
 Then the reader on the recorder's output: every frame as numpy (``transitions()``, the issue's target
 < 0.2 s for 100 x 150), every episode as a Trajectory, and one episode; medians over ``repeats``.

@@ -16,13 +16,16 @@ Durability — what survives how the process ends:
   a signal that arrives inside ``save_episode`` or a checkpoint is held until it is done, so no episode is
   ever half written. Previous handlers are restored on close.
 * SIGKILL, power loss, ``os._exit``: LeRobot keeps one ParquetWriter open per session and a parquet
-  file only becomes readable once its footer is written at close. The recorder therefore
-  **checkpoints**: every ``checkpoint_every`` episodes or ``checkpoint_interval_s`` seconds, whichever
-  comes first, it closes every open file and continues in new data / metadata / video files (as LeRobot's
-  resume would). A hard kill then leaves only the files opened since the last checkpoint
-  unreadable; :func:`repair` moves them aside and rewrites info/stats/tasks so the dataset loads with every
-  episode completed before that checkpoint (:attr:`DatasetRecorder.durable_episodes`). A checkpoint costs
-  a few ms (one more small file per checkpoint), so for slow human demonstrations use ``checkpoint_every=1``.
+  file only becomes readable once its footer is written at close. So every finished episode is first
+  written to a per-episode journal (:mod:`surrol_data.collect.journal`, one small file, atomically) before
+  ``record`` returns, and the recorder **checkpoints** every ``checkpoint_every`` episodes or
+  ``checkpoint_interval_s`` seconds: it closes every open file, continues in new data / metadata / video
+  files (as LeRobot's resume would) and empties the journal, so files stay few and the journal short.
+  After a hard kill, :func:`surrol_data.collect.repair.repair` (``surrol-data repair``, run automatically
+  by every command that opens the dataset) cuts the unreadable files back and replays the journal: every
+  finished episode is kept; only the one in progress is lost.
+* One writer at a time: the recorder holds a lock on the folder (:mod:`surrol_data.datasets.lock`); a
+  second writer gets a clear error. A session that records no episode removes the folder it created.
 
 Episode metadata is flushed each episode (``metadata_buffer_size=1``) so an uncaught error that skips
 ``finalize`` never leaves info.json ahead of meta/episodes.
@@ -392,7 +395,8 @@ class DatasetRecorder:
 
     @property
     def durable_episodes(self) -> int:
-        """Episodes that survive even a SIGKILL (after :func:`repair`): those before the last checkpoint."""
+        """Episodes already in closed dataset files (those before the last checkpoint). Every recorded episode
+        survives a SIGKILL either way (the journal holds the rest until the next checkpoint)."""
         return self._durable
 
     def _total_episodes_on_disk(self) -> int:

@@ -17,8 +17,10 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
-# What stays on the recording machine: lerobot's PNG staging area, repair backups, partial files, locks, caches.
-IGNORE_PATTERNS = ["images/*", ".surrol_data_repair/*", "*.tmp", "*.partial", "*.lock", ".cache/*"]
+# What stays on the recording machine: lerobot's PNG staging area, repair backups, the crash journal, the writer's
+# lock, partial files and caches.
+IGNORE_PATTERNS = ["images/*", ".surrol_data_repair/*", ".surrol_data_journal/*", ".surrol_data.lock", "*.lock",
+                   "*.tmp", "*.partial", ".cache/*"]
 
 
 @dataclass

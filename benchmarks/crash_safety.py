@@ -1,0 +1,388 @@
+"""Crash safety of every writer path, and validation against every damage class.
+
+Usage: ``uv run python benchmarks/crash_safety.py [--trials 20] [--signal-trials 6] [--paths script merge ...]``
+
+Part 1 — kills. Each writer path runs the real ``surrol-data`` command (the typer app, in a child process
+forked from this one after the heavy imports, so a trial costs seconds instead of the ~6 s lerobot import)
+and is ended at a random moment of its run: ``--trials`` times by SIGKILL, ``--signal-trials`` times by
+SIGTERM / SIGINT (alternating). The child reports every episode whose ``DatasetRecorder.record`` returned
+(a pipe write right after it); that is the ground truth of "finished". Then, in this process, each output
+goes through what our commands do first (:func:`surrol_data.datasets.guard.ensure_finished`: the automatic
+repair), and is opened with our reader and with ``LeRobotDataset`` (first and last frame read). Per path:
+trials, finished episodes, episodes lost (finished but not in the dataset; the episode in progress is not
+counted), datasets that open, automatic repairs, device traces present (haptic paths), datasets that pass
+``validate`` afterwards. A kill before the first episode leaves either no folder or one that a retry replaces:
+that counts as "opens".
+
+Part 2 — validation fuzz: every class of :mod:`surrol_data.datasets.corruptions` applied to a copy of a good
+dataset (camera video, device traces, two data files); ``validate_dataset`` must detect each (never raise,
+never pass it), and the commands' own guard (:func:`surrol_data.datasets.guard.require_valid`) must refuse or
+repair it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import random
+import shutil
+import signal
+import statistics
+import sys
+import tempfile
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+os.environ.setdefault("HF_HUB_OFFLINE", "1")
+os.environ.setdefault("HF_DATASETS_DISABLE_PROGRESS_BARS", "1")
+os.environ.setdefault("SVT_LOG", "1")
+
+# The heavy imports start helper threads; each forked trial only runs our own code, which starts none first.
+warnings.filterwarnings("ignore", message=".*fork.*", category=DeprecationWarning)
+
+from rich.console import Console  # noqa: E402
+from rich.table import Table  # noqa: E402
+
+TASK = "NeedleReach"
+PATHS = ("script", "haptic-operator", "haptic-replay", "append", "merge", "filter", "split", "export")
+HAPTIC = ("haptic-operator", "haptic-replay")
+
+
+@dataclass
+class Trial:
+    path: str
+    sig: str
+    out: Path
+    delay: float
+    finished: dict = field(default_factory=dict)   # output root -> episodes whose record() returned
+    exit_code: int | None = None
+    base_episodes: int = 0
+
+
+def _command(path: str, out: Path, bases: dict, episodes: int) -> list[str]:
+    s, h = str(bases["script"]), str(bases["haptic"])
+    return {
+        "script": ["collect", "--source", "script", "--task", TASK, "--episodes", str(episodes), "--out", str(out)],
+        "haptic-operator": ["collect", "--source", "haptic", "--device", "operator", "--skill", "expert",
+                            "--operator-id", "e1", "--task", TASK, "--episodes", str(episodes), "--out", str(out)],
+        "haptic-replay": ["collect", "--source", "haptic", "--device", "replay", "--trace", h, "--task", TASK,
+                          "--episodes", str(episodes), "--out", str(out)],
+        "append": ["collect", "--source", "script", "--task", TASK, "--episodes", str(episodes), "--out", str(out),
+                   "--append"],
+        "merge": ["merge", str(out), s, h],
+        "filter": ["filter", s, "--where", "success", "--out", str(out)],
+        "split": ["split", s, "--out", str(out), "--valid-fraction", "0.3"],
+        "export": ["export", s, "--format", "robomimic", "--out", str(out)],
+    }[path]
+
+
+def _child(args: list[str], report_fd: int, log: Path) -> None:
+    """In the forked child: run the command, writing one line per finished episode to the pipe."""
+    code = 0
+    try:
+        fd = os.open(log, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        os.dup2(fd, 1)
+        os.dup2(fd, 2)
+        import typer
+
+        from surrol_data.cli import app
+        from surrol_data.collect.recorder import DatasetRecorder
+
+        original = DatasetRecorder.record
+
+        def record_and_report(self, traj, provenance):
+            index = original(self, traj, provenance)
+            os.write(report_fd, f"{self.root}\n".encode())
+            return index
+
+        DatasetRecorder.record = record_and_report
+        try:
+            typer.main.get_command(app).main(args=args, prog_name="surrol-data", standalone_mode=False)
+        except SystemExit as e:
+            code = e.code if isinstance(e.code, int) else 1
+        except KeyboardInterrupt:
+            code = 130
+    except BaseException:  # noqa: BLE001 - reported through the exit status and the log
+        import traceback
+
+        traceback.print_exc()
+        code = 1
+    finally:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+
+
+def _run(args: list[str], log: Path, delay: float | None, sig: int | None) -> tuple[dict, int, float]:
+    """Fork, run ``args``, send ``sig`` after ``delay`` s (None: let it finish); (finished per root, exit, wall)."""
+    read_fd, write_fd = os.pipe()
+    t0 = time.monotonic()
+    # SIGINT/SIGTERM stay blocked across the fork until the child is inside its own try/finally, so an early
+    # signal can never let the child fall back into this function as a second parent.
+    held = {signal.SIGINT, signal.SIGTERM}
+    signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    pid = os.fork()
+    if pid == 0:
+        try:
+            os.close(read_fd)
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, held)
+            _child(args, write_fd, log)
+        finally:
+            os._exit(1)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, held)
+    os.close(write_fd)
+    done, status = 0, 0
+    if delay is not None:
+        deadline = t0 + delay
+        while time.monotonic() < deadline:
+            done, status = os.waitpid(pid, os.WNOHANG)
+            if done:
+                break
+            time.sleep(0.005)
+        else:
+            os.kill(pid, sig)
+    if not done:
+        _, status = os.waitpid(pid, 0)
+    wall = time.monotonic() - t0
+    with os.fdopen(read_fd) as f:
+        lines = [line.strip() for line in f.read().splitlines() if line.strip()]
+    finished: dict = {}
+    for line in lines:
+        finished[line] = finished.get(line, 0) + 1
+    return finished, os.waitstatus_to_exitcode(status), wall
+
+
+def _build_bases(work: Path) -> dict:
+    bases = {"script": work / "base_script", "haptic": work / "base_haptic"}
+    for args in (["collect", "--source", "script", "--task", TASK, "--episodes", "6", "--out", str(bases["script"])],
+                 ["collect", "--source", "haptic", "--device", "operator", "--skill", "expert", "--operator-id",
+                  "e1", "--task", TASK, "--episodes", "4", "--out", str(bases["haptic"])]):
+        _, code, _ = _run(args, work / "base.log", None, None)
+        if code != 0:
+            raise SystemExit(f"building a base dataset failed: see {work / 'base.log'}")
+    return bases
+
+
+def _outputs(trial: Trial) -> list[Path]:
+    if trial.path == "split":
+        return [trial.out / "train", trial.out / "valid"]
+    return [trial.out]
+
+
+def _check_dataset(root: Path, expected: int, haptic: bool) -> dict:
+    """Open ``root`` as our commands do; what was lost, whether it opens, repaired, traces, valid."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from surrol_data.collect.recorder import _holds_no_episode
+    from surrol_data.datasets.guard import ensure_finished
+    from surrol_data.datasets.reader import DatasetReader
+    from surrol_data.datasets.validate import validate_dataset
+
+    result = {"lost": 0, "opens": False, "repaired": False, "traces": None, "valid": False, "episodes": 0}
+    if not root.exists() or _holds_no_episode(root):
+        result.update(lost=expected, opens=True, valid=True)  # nothing there, and nothing blocks a retry
+        return result
+    notes: list[str] = []
+    try:
+        ensure_finished(root, notes.append)
+        result["repaired"] = bool(notes)
+        reader = DatasetReader(root)
+        ds = LeRobotDataset(f"local/{root.name}", root=root, video_backend="pyav")
+        if len(ds):
+            ds[0]
+            ds[len(ds) - 1]
+        result["episodes"] = len(reader)
+        result["opens"] = ds.num_episodes == len(reader)
+        result["lost"] = max(0, expected - len(reader))
+        if haptic:
+            traces = [root / "meta" / "device_traces" / f"episode_{ep:06d}.npz" for ep in range(len(reader))]
+            result["traces"] = all(t.exists() for t in traces)
+        result["valid"] = validate_dataset(root, check_reward=False, check_lerobot=False) == []
+    except Exception as e:  # noqa: BLE001 - a dataset that cannot be opened is the finding
+        result["error"] = f"{type(e).__name__}: {e}"
+    return result
+
+
+def _check_export(trial: Trial, total: int) -> dict:
+    import h5py
+
+    out = trial.out
+    result = {"lost": 0, "opens": True, "repaired": False, "traces": None, "valid": True, "episodes": 0}
+    if trial.exit_code == 0:
+        trial.finished = {str(out): total}
+    if out.exists():
+        try:
+            with h5py.File(out, "r") as f:
+                result["episodes"] = len(f["data"])
+        except Exception:  # noqa: BLE001
+            result.update(opens=False, valid=False)
+    result["lost"] = max(0, trial.finished.get(str(out), 0) - result["episodes"])
+    return result
+
+
+def kill_campaign(work: Path, paths: list[str], trials: int, signal_trials: int, seed: int, console: Console):
+    rng = random.Random(seed)
+    bases = _build_bases(work)
+    episodes = {"script": 6, "haptic-operator": 3, "haptic-replay": 4, "append": 4}
+    runs: list[Trial] = []
+    durations = {}
+    for path in paths:
+        out = work / f"{path}_calibrate" / ("out.hdf5" if path == "export" else "out")
+        out.parent.mkdir(parents=True)
+        if path == "append":
+            shutil.copytree(bases["script"], out)
+        _, code, wall = _run(_command(path, out, bases, episodes.get(path, 0)), out.parent / "log", None, None)
+        if code != 0:
+            raise SystemExit(f"{path}: an uninterrupted run failed (exit {code}); see {out.parent / 'log'}")
+        durations[path] = wall
+        kinds = ["KILL"] * trials + [("TERM", "INT")[i % 2] for i in range(signal_trials)]
+        for i, kind in enumerate(kinds):
+            out = work / f"{path}_{i:02d}" / ("out.hdf5" if path == "export" else "out")
+            out.parent.mkdir(parents=True)
+            trial = Trial(path, kind, out, delay=rng.uniform(0.0, 1.1 * wall))
+            if path == "append":
+                shutil.copytree(bases["script"], out)
+                trial.base_episodes = 6
+            trial.finished, trial.exit_code, _ = _run(_command(path, out, bases, episodes.get(path, 0)),
+                                                      out.parent / "log", trial.delay, getattr(signal, f"SIG{kind}"))
+            runs.append(trial)
+        console.print(f"  {path}: {len(kinds)} trials (uninterrupted run {wall:.1f} s)")
+    return runs, durations, bases
+
+
+def summarize_kills(runs: list[Trial], bases: dict) -> Table:
+    from surrol_data.datasets.reader import DatasetReader
+
+    script_total = len(DatasetReader(bases["script"]))
+    table = Table(title="Writer paths killed at random moments (SIGKILL, then SIGTERM/SIGINT)")
+    for col in ("path", "signal", "trials", "finished episodes", "episodes lost", "max lost in a trial",
+                "datasets open", "auto-repaired", "traces present", "valid after"):
+        table.add_column(col, justify="right" if col not in ("path", "signal") else "left")
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for trial in runs:
+        checks = []
+        if trial.path == "export":
+            checks.append(_check_export(trial, script_total))
+            finished = sum(trial.finished.values())
+        else:
+            finished = 0
+            for root in _outputs(trial):
+                n = trial.finished.get(str(root), 0)
+                finished += n
+                checks.append(_check_dataset(root, n + trial.base_episodes, trial.path in HAPTIC))
+        merged = {"finished": finished, "lost": sum(c["lost"] for c in checks),
+                  "opens": all(c["opens"] for c in checks), "repaired": any(c["repaired"] for c in checks),
+                  "traces": None if trial.path not in HAPTIC else all(c["traces"] is not False for c in checks),
+                  "valid": all(c["valid"] for c in checks), "errors": [c["error"] for c in checks if "error" in c]}
+        if merged["errors"] or merged["lost"]:
+            print(f"  {trial.path} {trial.sig} {trial.out}: {merged}", file=sys.stderr)
+        groups.setdefault((trial.path, "SIGKILL" if trial.sig == "KILL" else "SIGTERM/SIGINT"), []).append(merged)
+    totals = {"lost": 0, "trials": 0, "open": 0, "traces_missing": 0}
+    for (path, sig), rows in groups.items():
+        traces = [r["traces"] for r in rows if r["traces"] is not None]
+        table.add_row(path, sig, str(len(rows)), str(sum(r["finished"] for r in rows)),
+                      str(sum(r["lost"] for r in rows)), str(max(r["lost"] for r in rows)),
+                      f"{sum(r['opens'] for r in rows)}/{len(rows)}", str(sum(r["repaired"] for r in rows)),
+                      f"{sum(traces)}/{len(traces)}" if traces else "n/a",
+                      f"{sum(r['valid'] for r in rows)}/{len(rows)}")
+        totals["lost"] += sum(r["lost"] for r in rows)
+        totals["trials"] += len(rows)
+        totals["open"] += sum(r["opens"] for r in rows)
+        totals["traces_missing"] += len(traces) - sum(traces)
+    return table, totals
+
+
+def fuzz_campaign(work: Path, console: Console) -> tuple[Table, dict]:
+    from surrol_data.datasets.corruptions import CLASSES, base_dataset, damaged_copy
+    from surrol_data.datasets.guard import require_valid
+    from surrol_data.datasets.reader import DatasetError
+    from surrol_data.datasets.validate import validate_dataset
+
+    base = base_dataset(work / "fuzz_base")
+    clean = validate_dataset(base, check_reward=False)
+    if clean:
+        raise SystemExit(f"the fuzz base dataset is not clean: {clean}")
+    counts = {"detected": 0, "crashed": 0, "silent": 0, "refused": 0}
+    timings = []
+    for i, name in enumerate(CLASSES):
+        root = damaged_copy(base, name, work / f"fuzz_{i:03d}")
+        t0 = time.perf_counter()
+        try:
+            problems = validate_dataset(root, check_reward=False)  # LeRobotDataset check included
+            counts["detected" if problems else "silent"] += 1
+            if not problems:
+                console.print(f"  silently passed: {name}")
+        except Exception as e:  # noqa: BLE001
+            counts["crashed"] += 1
+            console.print(f"  crashed on {name}: {type(e).__name__}: {e}")
+        timings.append(time.perf_counter() - t0)
+        guard_root = damaged_copy(base, name, work / f"fuzz_guard_{i:03d}")
+        notes: list[str] = []
+        try:
+            require_valid(guard_root, notes.append)
+            refused = bool(notes)  # repaired automatically (an unfinished recording), with a message
+        except DatasetError:
+            refused = True
+        except Exception:  # noqa: BLE001
+            refused = False
+        counts["refused"] += refused
+        if not refused:
+            console.print(f"  commands would accept: {name}")
+    table = Table(title=f"Validation fuzz: {len(CLASSES)} damage classes (surrol_data.datasets.corruptions)")
+    for col in ("classes", "detected", "crashed", "silently passed", "refused/repaired by commands",
+                "median validate time"):
+        table.add_column(col, justify="right")
+    table.add_row(str(len(CLASSES)), str(counts["detected"]), str(counts["crashed"]), str(counts["silent"]),
+                  str(counts["refused"]), f"{statistics.median(timings):.2f} s")
+    return table, {"classes": len(CLASSES), **counts}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--trials", type=int, default=20, help="SIGKILL trials per writer path")
+    parser.add_argument("--signal-trials", type=int, default=6, help="SIGTERM/SIGINT trials per writer path")
+    parser.add_argument("--paths", nargs="+", default=list(PATHS), choices=PATHS)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--no-fuzz", action="store_true")
+    parser.add_argument("--no-kills", action="store_true")
+    parser.add_argument("--keep", action="store_true", help="keep the work folder (printed)")
+    args = parser.parse_args()
+    console = Console(width=150)
+
+    # Heavy imports once, before any fork: each trial then costs only its own work.
+    import lerobot.datasets.lerobot_dataset  # noqa: F401
+
+    import surrol_data.cli  # noqa: F401
+    import surrol_data.collect.haptic_source  # noqa: F401
+    import surrol_data.collect.script_source  # noqa: F401
+    import surrol_data.envs  # noqa: F401
+
+    work = Path(tempfile.mkdtemp(prefix="crash_safety_"))
+    ok = True
+    try:
+        if not args.no_kills:
+            console.print(f"kill campaign in {work} ...")
+            t0 = time.monotonic()
+            runs, _, bases = kill_campaign(work, args.paths, args.trials, args.signal_trials, args.seed, console)
+            table, totals = summarize_kills(runs, bases)
+            console.print(table)
+            console.print(f"{totals['trials']} trials in {time.monotonic() - t0:.0f} s: {totals['lost']} finished "
+                          f"episodes lost, {totals['open']}/{totals['trials']} datasets open, "
+                          f"{totals['traces_missing']} trace sets incomplete")
+            ok &= totals["lost"] == 0 and totals["open"] == totals["trials"] and totals["traces_missing"] == 0
+        if not args.no_fuzz:
+            table, counts = fuzz_campaign(work, console)
+            console.print(table)
+            ok &= counts["crashed"] == 0 and counts["silent"] == 0 and counts["refused"] == counts["classes"]
+    finally:
+        if args.keep:
+            console.print(f"work folder kept: {work}")
+        else:
+            shutil.rmtree(work, ignore_errors=True)
+    raise SystemExit(0 if ok else 1)
+
+
+if __name__ == "__main__":
+    main()
