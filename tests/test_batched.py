@@ -1,0 +1,212 @@
+"""The batched training path: stacked DDPG members, the offline→online warm start, runs in one ensemble, resume."""
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from surrol_data.algos.ddpg import DDPG, DDPGConfig, q_term_scale
+from surrol_data.algos.demos import DemoSpec
+from surrol_data.algos.ensemble import EnsembleDDPG
+from surrol_data.algos.replay import EpisodeReplay
+from surrol_data.algos.train import Schedule, TrainConfig, read_metrics, train
+from surrol_data.algos.train_batched import train_batched
+
+REACH = "SurRoL/NeedleReach-v0"
+REPO = Path(__file__).resolve().parents[1]
+CLI = [sys.executable, "-m", "surrol_data.cli"]
+CFG = DDPGConfig(hidden_sizes=(32, 32), bc_weight=5.0, q_filter=True, action_l2=0.5)
+
+
+@pytest.fixture(autouse=True)
+def one_torch_thread():
+    """What the run loops use; more threads than free cores make these small updates crawl on a busy machine."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+def reward(ag, g):
+    return (np.linalg.norm(ag - g, axis=-1) < 0.5).astype(np.float32) - 1.0
+
+
+def random_buffer(seed: int, episodes: int = 6) -> EpisodeReplay:
+    buf = EpisodeReplay(10, 20, 4, 3, 2, reward, 4, seed=seed)
+    rng = np.random.default_rng(seed)
+    for _ in range(episodes):
+        buf.add_episode(rng.standard_normal((21, 4)), rng.standard_normal((21, 3)), rng.standard_normal((20, 3)),
+                        rng.uniform(-1, 1, (20, 2)))
+    return buf
+
+
+def members_and_singles(seeds):
+    singles = [DDPG(4, 3, 2, CFG, seed=s) for s in seeds]
+    ensemble = EnsembleDDPG(4, 3, 2, CFG, seeds)
+    for i, s in enumerate(seeds):
+        data = random_buffer(50 + s)
+        for inputs in (singles[i].inputs, ensemble.inputs[i]):
+            inputs.update(data.obs.reshape(-1, 4), data.g.reshape(-1, 3))
+    return singles, ensemble
+
+
+def test_ensemble_members_start_and_learn_like_their_single_runs():
+    seeds = [0, 3]
+    singles, ensemble = members_and_singles(seeds)
+    obs = [{"observation": np.ones((2, 4), np.float32) * (i + 1), "desired_goal": np.zeros((2, 3), np.float32)}
+           for i in range(2)]
+    np.testing.assert_allclose(ensemble.act(obs, explore=False)[1], singles[1].act(obs[1], explore=False), atol=1e-6)
+    # the same batches (same generators, same draw order) give the same losses, up to batched-kernel rounding
+    for step in range(3):
+        mine = ensemble.update([random_buffer(s) for s in seeds], [random_buffer(100 + s) for s in seeds])
+        theirs = [single.update(random_buffer(s), random_buffer(100 + s)) for s, single in zip(seeds, singles)]
+        for m, t in zip(mine, theirs):
+            assert m.keys() == t.keys()
+            for key in m:
+                assert m[key] == pytest.approx(t[key], rel=1e-3, abs=1e-5), (step, key)
+    # members differ from each other (their own seeds), and a member's checkpoint is a single run's
+    assert not np.allclose(ensemble.act(obs, False)[0], ensemble.act([obs[0], obs[0]], False)[1])
+    restored = DDPG(4, 3, 2, CFG, seed=99)
+    restored.load_state_dict(ensemble.member_state_dict(1))
+    np.testing.assert_allclose(restored.act(obs[1], explore=False), ensemble.act(obs, explore=False)[1], atol=1e-6)
+    assert restored.online_updates == 3
+    # and a single run's state loads into a member slot, optimiser moments included
+    other = EnsembleDDPG(4, 3, 2, CFG, [7, 8])
+    other.load_member_state_dict(0, ensemble.member_state_dict(1))
+    np.testing.assert_allclose(other.act([obs[1], obs[1]], False)[0], ensemble.act(obs, False)[1], atol=1e-6)
+    for key in ("actor_opt", "critic_opt"):
+        a, b = other.member_state_dict(0)[key]["state"], ensemble.member_state_dict(1)[key]["state"]
+        assert all(torch.equal(a[i]["exp_avg_sq"], b[i]["exp_avg_sq"]) for i in b)
+
+
+def test_warm_start_holds_the_actor_then_ramps_the_q_term():
+    cfg = DDPGConfig(actor_hold_updates=3, q_ramp_updates=4)
+    assert [q_term_scale(u, cfg) for u in range(8)] == [0.0, 0.0, 0.0, 0.25, 0.5, 0.75, 1.0, 1.0]
+    assert q_term_scale(0, DDPGConfig()) == 1.0  # the paper's ddpgbc: full Q term from the first update
+    held = DDPG(4, 3, 2, DDPGConfig(hidden_sizes=(16,), actor_hold_updates=5, bc_weight=5.0, action_l2=0.0), seed=0)
+    no_demos = [p.clone() for p in held.actor.parameters()]
+    metrics = held.update(random_buffer(0), None)  # held and no demo batch: the actor does not move at all
+    assert "actor_loss" not in metrics and all(torch.equal(a, b) for a, b in zip(no_demos, held.actor.parameters()))
+    metrics = held.update(random_buffer(0), random_buffer(1))  # the BC term alone moves it
+    assert "bc_loss" in metrics and not all(torch.equal(a, b) for a, b in zip(no_demos, held.actor.parameters()))
+    # offline critic warm-up: TD steps on demo batches lower the TD error of the pre-trained actor's values
+    fresh = DDPG(4, 3, 2, DDPGConfig(hidden_sizes=(32, 32)), seed=1)
+    demos = random_buffer(2)
+    losses = [fresh.pretrain_critic_step(demos) for _ in range(150)]
+    assert np.mean(losses[-20:]) < 0.5 * np.mean(losses[:5])
+
+
+# --- whole runs ---------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def reach_demos(tmp_path_factory):
+    from surrol_data.collect.script_source import collect_script
+
+    root = tmp_path_factory.mktemp("demos") / "NeedleReach_script"
+    collect_script("NeedleReach", 4, root, progress=False)
+    return root
+
+
+def run_config(run_dir, demos, seed, epochs=2, **params):
+    return TrainConfig(env_id=REACH, run_dir=str(run_dir), learner="ddpg",
+                       learner_params={"hidden_sizes": (32, 32), "bc_weight": 5.0, "q_filter": False,
+                                       "action_l2": 0.0, **params},
+                       demos=DemoSpec(path=str(demos), num=4),
+                       schedule=Schedule(epochs=epochs, cycles=2, episodes_per_cycle=2, updates_per_cycle=3, n_envs=1,
+                                         eval_episodes=2, offline_steps=10, buffer_episodes=20),
+                       seed=seed, progress=False, tensorboard=False)
+
+
+def _comparable(rows):
+    return json.dumps([{k: v for k, v in r.items() if k != "wall_s" and not k.startswith("time_")} for r in rows])
+
+
+def test_batched_runs_write_what_single_runs_write(tmp_path, reach_demos):
+    cfgs = [run_config(tmp_path / f"b{s}", reach_demos, s, critic_pretrain_steps=5) for s in (0, 1)]
+    batched = train_batched(cfgs, overlap=False, n_workers=0, progress=False)
+    single = train(run_config(tmp_path / "s1", reach_demos, 1, critic_pretrain_steps=5))
+    for rows, cfg in zip(batched, cfgs):
+        assert read_metrics(cfg.run_dir) == json.loads(json.dumps(rows))
+        assert (Path(cfg.run_dir) / "policy.pt").is_file() and (Path(cfg.run_dir) / "checkpoint.pt").is_file()
+    b = batched[1]
+    assert [r.keys() for r in b] == [r.keys() for r in single]
+    for key in ("epoch", "env_steps", "episodes", "updates"):
+        assert [r[key] for r in b] == [r[key] for r in single]
+    # same seeds, same batches: the offline phase agrees to rounding, the online losses stay close
+    assert b[0]["bc_loss"] == pytest.approx(single[0]["bc_loss"], rel=1e-4)
+    assert b[0]["critic_pretrain_loss"] == pytest.approx(single[0]["critic_pretrain_loss"], rel=1e-3)
+    assert b[1]["critic_loss"] == pytest.approx(single[1]["critic_loss"], rel=0.2)
+    assert b[0]["success_rate"] == single[0]["success_rate"]
+    # the two members are different runs
+    assert batched[0][0]["bc_loss"] != b[0]["bc_loss"]
+    # a member's checkpoint is a single run's: the single path loads it (and, the run being complete, adds nothing)
+    assert _comparable(train(TrainConfig(**{**cfgs[1].__dict__, "resume": True}))) == _comparable(b)
+
+
+def test_batched_resume_takes_the_oldest_epoch_when_a_kill_split_the_members(tmp_path, reach_demos):
+    """A kill between two members' checkpoint moves leaves them an epoch apart; resume restarts both at the older."""
+    cfgs = [run_config(tmp_path / str(s), reach_demos, s, epochs=3) for s in (0, 1)]
+    straight = train_batched(cfgs, n_workers=0, progress=False)
+    member0 = Path(cfgs[0].run_dir)
+    shutil.move(member0 / "checkpoint.prev.pt", member0 / "checkpoint.pt")  # member 0 back at epoch 2
+    (member0 / "checkpoint.tmp").write_bytes(b"half written")              # and a torn temporary file
+    for cfg in cfgs:
+        cfg.resume = True
+    resumed = train_batched(cfgs, n_workers=0, progress=False)
+    for a, b in zip(resumed, straight):
+        assert _comparable(a) == _comparable(b)
+    assert json.loads((member0 / "process.json").read_text())["resumed_after_epoch"] == 2
+
+
+def _cli_overrides(run_root, demos_root, *extra):
+    return ["batched=true", "seed=0,1", "task=NeedleReach", "algo=ddpgbc_warm", "demos=script", "demos.num=4",
+            f"demos_root={demos_root}", "experiment=smoke", "experiment.epochs=5", "algo.params.hidden_sizes=[64,64]",
+            "algo.params.critic_pretrain_steps=20", "algo.params.actor_hold_updates=8", "algo.params.q_ramp_updates=8",
+            f"run_dir={run_root}/seed${{seed}}", "progress=false", "tensorboard=false", *extra]
+
+
+@pytest.mark.slow  # two batched runs and a resume in subprocesses: ~1 min on a quiet 2-core machine
+def test_batched_sweep_resumes_exactly_after_sigkill(tmp_path, reach_demos):
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    killed = _cli_overrides(tmp_path / "killed", reach_demos.parent)
+    proc = subprocess.Popen([*CLI, "train", "-m", *killed], cwd=tmp_path, env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, start_new_session=True)
+    metrics = tmp_path / "killed" / "seed1" / "metrics.jsonl"
+    deadline = time.time() + 180
+    while time.time() < deadline and proc.poll() is None:
+        if metrics.exists() and len(metrics.read_text().splitlines()) >= 3:
+            break
+        time.sleep(0.05)
+    assert proc.poll() is None, f"the run ended before it could be killed: {proc.stderr.read().decode()[-2000:]}"
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    result = subprocess.run([*CLI, "train", "-m", *killed, "resume=true"], cwd=tmp_path, env=env,
+                            capture_output=True, text=True)
+    assert result.returncode == 0, result.stderr[-3000:]
+    subprocess.run([*CLI, "train", "-m", *_cli_overrides(tmp_path / "straight", reach_demos.parent)], cwd=tmp_path,
+                   env=env, check=True, capture_output=True)
+    for seed in (0, 1):
+        resumed, straight = read_metrics(tmp_path / "killed" / f"seed{seed}"), read_metrics(tmp_path / "straight" / f"seed{seed}")
+        assert [r["epoch"] for r in resumed] == list(range(6))
+        assert _comparable(resumed) == _comparable(straight)
+    assert json.loads((tmp_path / "killed" / "seed0" / "process.json").read_text())["resumed_after_epoch"] >= 1
+
+
+@pytest.mark.slow  # ~2 min: the single path's test_her_learners_learn_needle_reach_without_demos, batched
+def test_batched_ddpg_her_learns_needle_reach_like_single_runs(tmp_path):
+    """Equal in distribution: the bar the single path clears (>= 90 % within 8 epochs), met by every member."""
+    cfgs = [TrainConfig(env_id=REACH, run_dir=str(tmp_path / f"seed{s}"), learner="ddpg",
+                        learner_params={"bc_weight": 0.0},
+                        schedule=Schedule(epochs=8, cycles=10, updates_per_cycle=40, eval_episodes=20,
+                                          warmup_steps=1000, n_envs=2),
+                        seed=s, progress=False, tensorboard=False) for s in (0, 1)]
+    for rows in train_batched(cfgs, overlap=True, n_workers=2, progress=False):
+        assert max(r["success_rate"] for r in rows) >= 0.9, [r["success_rate"] for r in rows]
