@@ -100,6 +100,52 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
 
 
 @app.command()
+def gui(out: Path = typer.Option(Path("gui_sessions"), help="Folder for the sessions' datasets (one per task: OUT/<task>)."),
+        task: Optional[str] = typer.Option(None, help="Task chosen when the window opens."),
+        device: str = typer.Option("keyboard", help="keyboard, operator, touch, gamepad or spacemouse."),
+        operator_id: str = typer.Option("", help="Who operates (recorded in provenance)."),
+        skill: str = typer.Option("unknown", help="expert, novice or unknown (operator: expert|novice)."),
+        seed: int = typer.Option(0, help="Seed of the first attempt; attempt i uses seed + i."),
+        autoplay: Optional[int] = typer.Option(None, min=1, help="Play --task at once and exit after this many "
+                                               "saved episodes (demos, smoke tests)."),
+        screenshot: Optional[Path] = typer.Option(None, help="Write a PNG of the window when it closes."),
+        offscreen: Optional[bool] = typer.Option(None, "--offscreen/--onscreen", help="Draw into an offscreen "
+                                                 "buffer (default: when there is no display).")):
+    """The training GUI: pick a task, press play, operate with any device; every attempt is recorded with provenance."""
+    from surrol_data.collect.haptic_source import SKILLS
+    from surrol_data.envs import TASKS
+    from surrol_data.gui.app import DEVICES
+    from surrol_data.render.display import RendererUnavailable
+
+    if task is not None and task not in TASKS:
+        _fail(f"unknown task {task!r}; known tasks: {', '.join(TASKS)}")
+    if device not in DEVICES:
+        _fail(f"--device must be one of {', '.join(DEVICES)}, got {device!r}")
+    if skill not in SKILLS:
+        _fail(f"--skill must be one of {', '.join(SKILLS)}, got {skill!r}")
+    if autoplay is not None and task is None:
+        _fail("--autoplay needs --task")
+    from surrol_data.gui.app import TrainingApp
+
+    try:
+        window = TrainingApp(out, offscreen=offscreen, seed=seed)
+    except RendererUnavailable as e:
+        _fail(str(e))
+    window.set_session(device, skill, operator_id)
+    if task is not None:
+        window.choose_task(task)
+    if autoplay is not None:
+        window.autoplay(task, autoplay)
+    window.run(screenshot=screenshot)
+    if window.last_error:
+        _fail(window.last_error)
+    if window.last_result is not None:
+        r = window.last_result
+        console.print(f"recorded {r.kept} episodes ({r.attempts} attempts, {r.discarded} discarded, "
+                      f"{r.redone} redone) into {out / window.last_task}")
+
+
+@app.command()
 def info(dataset: Path = typer.Argument(..., help="Dataset folder.")):
     """Summarise a dataset: counts, features and a provenance breakdown."""
     from surrol_data.datasets.guard import require_valid

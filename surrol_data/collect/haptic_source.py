@@ -87,8 +87,8 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
     ``rerun+http://`` URL, or an ``.rrd`` path to stream the session to. ``max_attempts``: stop after that
     many finished attempts (default 3 × episodes). ``realtime``: pace steps to the control period (default:
     for human devices only). ``key_tracker``: the key source of a host window (the training GUI) for keyboard
-    devices and the session keys. ``on_step(step, obs, info, flags)``: called after every env step (``step``
-    counts from 1 in each attempt), e.g. to draw a frame. ``env_kwargs``: extra ``gym.make`` arguments.
+    devices and the session keys. ``on_step(env, step, obs, info, flags)``: called after every env step
+    (``step`` counts from 1 in each attempt), e.g. to draw a frame. ``env_kwargs``: extra ``gym.make`` arguments.
     """
     if episodes <= 0:
         raise ValueError(f"--episodes must be positive, got {episodes}")
@@ -318,7 +318,7 @@ class _Session:
             if self.live:
                 self.live.step(k, obs, action, info, flags)
             if self.on_step is not None:
-                self.on_step(k + 1, obs, info, flags)
+                self.on_step(env, k + 1, obs, info, flags)
             if info["is_success"] and after_success is None:
                 after_success = STEPS_AFTER_SUCCESS
             elif after_success is not None:

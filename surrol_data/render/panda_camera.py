@@ -132,5 +132,5 @@ class PandaEndoscopeCamera:
                 self._tagged.add(body)
 
     def close(self) -> None:
+        self.stage.close()
         self.engine.remove_all_windows()
-        self.stage.root.remove_node()

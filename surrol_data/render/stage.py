@@ -55,6 +55,11 @@ class EndoscopeStage:
         hit = self.mirror.client.rayTest(start, end)[0]
         return None if hit[0] < 0 else hit[2] * reach
 
+    def close(self) -> None:
+        """Drop the scene graph and the light's shadow buffer (which otherwise goes on being drawn)."""
+        self.light.spot.set_shadow_caster(False)
+        self.root.remove_node()
+
     def place_camera(self, camera: NodePath) -> None:
         """Put ``camera`` at the endoscope pose of the last :meth:`update`."""
         eye, forward, up = self._pose

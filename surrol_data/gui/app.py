@@ -1,0 +1,371 @@
+"""The training window: a task panel, the live endoscope view with a heads-up display, session controls.
+
+Layout (1280×720 by default): on the left every registered task as a card (its endoscope picture, name and
+one-line description); on the right the endoscope view drawn by :mod:`surrol_data.render` with the HUD over
+it; under the view the controls of ``collect --source haptic`` — device, operator id, skill — and the
+buttons play, redo, discard, save and exit.
+
+Play runs a haptic session (:func:`surrol_data.collect.haptic_source.collect_haptic`, the same recorder and
+provenance as the CLI) into ``<out>/<task>``; the session calls back after every step, and the window
+draws a frame and handles its events then. Redo / discard / save / exit press the session keys
+(``r`` / ``f`` / ``Enter`` / ``Esc``) through the window's key source, so the keyboard and the buttons
+do the same. Without a display the window is an offscreen buffer (tests, screenshots).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+
+import surrol_data.envs  # noqa: F401  (registers the tasks)
+from surrol_data.collect.devices.keyboard import DISCARD_KEY, QUIT_KEY, REDO_KEY, SAVE_KEY
+from surrol_data.collect.haptic_source import SKILLS, has_display
+from surrol_data.envs import TASKS, env_id
+from surrol_data.gui.hud import Hud
+from surrol_data.render import display
+
+# Devices offered in the panel: every device of `collect --source haptic` but replay (which needs a file).
+DEVICES = ("keyboard", "operator", "touch", "gamepad", "spacemouse")
+WINDOW_SIZE = (1280, 720)
+PANEL_FRACTION = 0.34      # of the window's width, for the task panel
+CONTROLS_FRACTION = 0.16   # of the window's height, for the controls under the view
+THUMBNAIL = (192, 144)
+_IDLE_FRAME_S = 1 / 30
+SESSION_EPISODES = 10_000   # a session records until exit unless told otherwise
+
+
+def one_line(text: str) -> str:
+    """The first sentence of a task's description."""
+    text = " ".join(text.split())
+    end = text.find(". ")
+    return text if end < 0 else text[:end + 1]
+
+
+class TrainingApp:
+    """The GUI; ``offscreen`` (default: when there is no display) draws into a buffer instead of a window."""
+
+    def __init__(self, out: str | Path = "gui_sessions", offscreen: bool | None = None,
+                 size: tuple[int, int] = WINDOW_SIZE, seed: int = 0):
+        display.configure()
+        from panda3d.core import loadPrcFileData
+
+        self.offscreen = (not has_display()) if offscreen is None else offscreen
+        if self.offscreen:
+            display.offscreen_pipe()   # fails early, naming the packages, where EGL is missing
+            loadPrcFileData("surrol_data_gui", "load-display p3headlessgl\n")
+        loadPrcFileData("surrol_data_gui", f"win-size {size[0]} {size[1]}\nwindow-title surrol_data training\n")
+        from direct.showbase.ShowBase import ShowBase
+
+        self.base = ShowBase(windowType="offscreen" if self.offscreen else "onscreen")
+        self.base.disable_mouse()
+        self.base.set_background_color(0.03, 0.03, 0.035, 1)
+        self.size = size
+        self.out = Path(out)
+        self.seed = seed
+        self.task: str | None = None
+        self.device, self.skill, self.operator_id = "keyboard", "unknown", ""
+        self.hud = Hud()
+        self.exit_requested = False
+        self.last_result = None
+        self.last_task: str | None = None
+        self.last_error: str | None = None
+        self._play_requested = False
+        self._session_running = False
+        self._stage = None
+        self._stage_client = None
+        self._endoscope = None
+        self._preview_env = None
+        self.session_episodes = SESSION_EPISODES
+        self.exit_after_session = False
+
+        from surrol_data.gui.keys import WindowKeys
+
+        self.keys = WindowKeys(self.base)
+        self._setup_view()
+        self._build_panel()
+        self._build_controls()
+        self._build_hud()
+
+    # ------------------------------------------------------------------ layout
+    def _setup_view(self) -> None:
+        from surrol_data.render.stage import endoscope_lens
+
+        region = self.base.camNode.get_display_region(0)
+        region.set_dimensions(PANEL_FRACTION, 1.0, CONTROLS_FRACTION, 1.0)
+        w = int(self.size[0] * (1 - PANEL_FRACTION))
+        h = int(self.size[1] * (1 - CONTROLS_FRACTION))
+        self.base.camNode.set_lens(endoscope_lens(w, h))
+
+    def _build_panel(self) -> None:
+        from direct.gui.DirectGui import DGG, DirectButton, DirectFrame, DirectLabel, DirectScrolledFrame
+        from panda3d.core import TextNode
+
+        aspect = self.size[0] / self.size[1]
+        width = 2 * aspect * PANEL_FRACTION
+        DirectFrame(parent=self.base.a2dTopLeft, frameColor=(0.12, 0.12, 0.14, 1),
+                    frameSize=(0, width, -2, 0))
+        DirectLabel(parent=self.base.a2dTopLeft, text="Tasks", scale=0.06, pos=(0.04, 0, -0.08),
+                    text_align=TextNode.A_left, text_fg=(1, 1, 1, 1), frameColor=(0, 0, 0, 0))
+        card_h = 0.3
+        self.panel = DirectScrolledFrame(parent=self.base.a2dTopLeft, pos=(0.02, 0, -0.12),
+                                         frameSize=(0, width - 0.04, -1.86, 0),
+                                         canvasSize=(0, width - 0.1, -card_h * len(TASKS), 0),
+                                         frameColor=(0.12, 0.12, 0.14, 1), scrollBarWidth=0.04,
+                                         verticalScroll_frameColor=(0.2, 0.2, 0.22, 1))
+        pictures = self._task_pictures()
+        self.cards = {}
+        for i, task in enumerate(TASKS):
+            card = DirectButton(parent=self.panel.getCanvas(), frameSize=(0, width - 0.12, -card_h + 0.02, 0),
+                                pos=(0, 0, -card_h * i), relief=DGG.FLAT, frameColor=(0.18, 0.18, 0.2, 1),
+                                command=self.choose_task, extraArgs=[task], pressEffect=False)
+            if task in pictures:
+                DirectFrame(parent=card, image=pictures[task], image_scale=(0.16, 1, 0.12),
+                            pos=(0.18, 0, -0.14), frameColor=(0, 0, 0, 0))
+            DirectLabel(parent=card, text=task, scale=0.05, pos=(0.37, 0, -0.07), text_align=TextNode.A_left,
+                        text_fg=(1, 1, 1, 1), frameColor=(0, 0, 0, 0))
+            DirectLabel(parent=card, text=one_line(self._description(task)), scale=0.034, pos=(0.37, 0, -0.13),
+                        text_align=TextNode.A_left, text_wordwrap=(width - 0.52) / 0.034,
+                        text_fg=(0.8, 0.8, 0.82, 1), frameColor=(0, 0, 0, 0))
+            self.cards[task] = card
+
+    def _build_controls(self) -> None:
+        from direct.gui.DirectGui import DirectButton, DirectEntry, DirectLabel, DirectOptionMenu
+        from panda3d.core import TextNode
+
+        aspect = self.size[0] / self.size[1]
+        left = -aspect + 2 * aspect * PANEL_FRACTION + 0.05
+        row1, row2 = -1 + 2 * CONTROLS_FRACTION - 0.09, -1 + 0.07
+        label = dict(scale=0.04, text_align=TextNode.A_left, text_fg=(0.85, 0.85, 0.85, 1), frameColor=(0, 0, 0, 0))
+        DirectLabel(text="device", pos=(left, 0, row1), **label)
+        self.device_menu = DirectOptionMenu(items=list(DEVICES), initialitem=DEVICES.index(self.device),
+                                            scale=0.045, pos=(left + 0.14, 0, row1), command=self._set_device,
+                                            highlightColor=(0.6, 0.6, 0.65, 1))
+        DirectLabel(text="operator", pos=(left + 0.58, 0, row1), **label)
+        self.operator_entry = DirectEntry(initialText=self.operator_id, scale=0.045, width=8,
+                                          pos=(left + 0.76, 0, row1), command=self._set_operator,
+                                          focusInCommand=self._typing, focusInExtraArgs=[True],
+                                          focusOutCommand=self._typing, focusOutExtraArgs=[False])
+        DirectLabel(text="skill", pos=(left + 1.2, 0, row1), **label)
+        self.skill_menu = DirectOptionMenu(items=list(SKILLS), initialitem=SKILLS.index(self.skill), scale=0.045,
+                                           pos=(left + 1.3, 0, row1), command=self._set_skill,
+                                           highlightColor=(0.6, 0.6, 0.65, 1))
+        button = dict(scale=0.05, frameSize=(-2.2, 2.2, -0.6, 1.0), text_fg=(1, 1, 1, 1))
+        self.buttons = {
+            "play": DirectButton(text="play", pos=(left + 0.12, 0, row2), command=self.play,
+                                 frameColor=(0.15, 0.5, 0.2, 1), **button),
+            "redo": DirectButton(text="redo", pos=(left + 0.40, 0, row2), command=self.keys.press,
+                                 extraArgs=[REDO_KEY], frameColor=(0.3, 0.3, 0.35, 1), **button),
+            "discard": DirectButton(text="discard", pos=(left + 0.68, 0, row2), command=self.keys.press,
+                                    extraArgs=[DISCARD_KEY], frameColor=(0.3, 0.3, 0.35, 1), **button),
+            "save": DirectButton(text="save", pos=(left + 0.96, 0, row2), command=self.keys.press,
+                                 extraArgs=[SAVE_KEY], frameColor=(0.2, 0.35, 0.6, 1), **button),
+            "exit": DirectButton(text="exit", pos=(left + 1.24, 0, row2), command=self.request_exit,
+                                 frameColor=(0.55, 0.18, 0.15, 1), **button),
+        }
+        self.status = DirectLabel(text="choose a task", pos=(left + 1.45, 0, row2), **label)
+
+    def _build_hud(self) -> None:
+        from direct.gui.OnscreenText import OnscreenText
+        from panda3d.core import TextNode
+
+        aspect = self.size[0] / self.size[1]
+        x = -aspect + 2 * aspect * PANEL_FRACTION + 0.04
+        self.hud_text = OnscreenText(text="", pos=(x, 0.92), scale=0.045, align=TextNode.A_left,
+                                     fg=(0.95, 0.95, 0.6, 1), shadow=(0, 0, 0, 1), mayChange=True)
+
+    # ------------------------------------------------------------------ task pictures and descriptions
+    @staticmethod
+    def _description(task: str) -> str:
+        from gymnasium.envs.registration import load_env_creator
+
+        cls = load_env_creator(gym.spec(env_id(task)).entry_point)
+        return getattr(cls, "TASK", "") or (cls.__doc__ or task).strip().splitlines()[0]
+
+    def _task_pictures(self) -> dict:
+        """Each task's endoscope view after a seeded reset, drawn by this window's renderer into a texture."""
+        from panda3d.core import Texture
+
+        from surrol_data.render.env_view import EnvEndoscope
+        from surrol_data.render.stage import EndoscopeStage, endoscope_lens
+
+        pictures = {}
+        for task in TASKS:
+            env = gym.make(env_id(task), render_mode="rgb_array")
+            env.reset(seed=self.seed)
+            view = EnvEndoscope(env)
+            stage = EndoscopeStage(view.client, view.scene_scale)
+            tex = Texture(f"picture-{task}")
+            buffer = self.base.win.make_texture_buffer(f"picture-{task}", *THUMBNAIL, tex, True)
+            buffer.set_clear_color((0, 0, 0, 1))
+            cam = self.base.make_camera(buffer, lens=endoscope_lens(*THUMBNAIL))
+            cam.reparent_to(stage.root)
+            stage.update(view.pose())
+            stage.place_camera(cam)
+            for _ in range(2):   # the first frame makes the light's shadow buffer
+                self.base.graphicsEngine.render_frame()
+            self.base.graphicsEngine.remove_window(buffer)
+            stage.close()
+            env.close()
+            pictures[task] = tex
+        return pictures
+
+    # ------------------------------------------------------------------ actions
+    def choose_task(self, task: str) -> None:
+        if self._session_running:
+            return
+        if task not in TASKS:
+            raise ValueError(f"unknown task {task!r}; known tasks: {', '.join(TASKS)}")
+        self.task = task
+        for name, card in self.cards.items():
+            card["frameColor"] = (0.25, 0.35, 0.5, 1) if name == task else (0.18, 0.18, 0.2, 1)
+        if self._preview_env is not None:
+            self._preview_env.close()
+        self._preview_env = gym.make(env_id(task), render_mode="rgb_array")
+        self._preview_env.reset(seed=self.seed)
+        self._show_env(self._preview_env)
+        self.hud.task = task
+        self.status["text"] = f"{task}: press play"
+
+    def set_session(self, device: str, skill: str, operator_id: str) -> None:
+        """Fill the session controls (what the menus and the operator field set)."""
+        if device not in DEVICES or skill not in SKILLS:
+            raise ValueError(f"device must be one of {DEVICES} and skill one of {SKILLS}, got {device!r}, {skill!r}")
+        self.device_menu.set(DEVICES.index(device), fCommand=False)
+        self.skill_menu.set(SKILLS.index(skill), fCommand=False)
+        self.operator_entry.enterText(operator_id)
+        self.device, self.skill, self.operator_id = device, skill, operator_id.strip()
+
+    def _set_device(self, name: str) -> None:
+        self.device = name
+        if name == "operator" and self.skill == "unknown":
+            self.skill_menu.set(SKILLS.index("expert"))
+
+    def _set_skill(self, skill: str) -> None:
+        self.skill = skill
+
+    def _set_operator(self, text: str) -> None:
+        self.operator_id = text.strip()
+
+    def _typing(self, typing: bool) -> None:
+        # Keys typed into the operator field are not teleoperation or session keys.
+        self.keys.enabled = not typing
+        if not typing:
+            self._set_operator(self.operator_entry.get())
+
+    def play(self) -> None:
+        if self.task is None:
+            self.status["text"] = "choose a task first"
+            return
+        if not self._session_running:
+            self._play_requested = True
+
+    def request_exit(self) -> None:
+        """Exit: ends a running session (its finished episodes are saved) and closes the window."""
+        self.exit_requested = True
+        if self._session_running:
+            self.keys.press(QUIT_KEY)
+
+    # ------------------------------------------------------------------ drawing
+    def _show_env(self, env) -> None:
+        from surrol_data.render.env_view import EnvEndoscope
+        from surrol_data.render.stage import EndoscopeStage
+
+        if self._stage is None or self._stage_client is not env.unwrapped.client:
+            if self._stage is not None:
+                self._stage.close()
+            self._endoscope = EnvEndoscope(env)
+            self._stage = EndoscopeStage(self._endoscope.client, self._endoscope.scene_scale)
+            self._stage.root.reparent_to(self.base.render)
+            self._stage_client = env.unwrapped.client
+        self._draw()
+
+    def _draw(self) -> None:
+        if self._stage is not None:
+            self._stage.update(self._endoscope.pose())
+            self._stage.place_camera(self.base.cam)
+        self.hud_text.setText("\n".join(self.hud.lines()) if self.task else "")
+        self.base.taskMgr.step()
+
+    def frame(self) -> None:
+        """One idle frame: draw, handle clicks and keys, start a requested session."""
+        if self._play_requested:
+            self._play_requested = False
+            self._run_session()
+        else:
+            self._draw()
+
+    def run(self, screenshot: str | Path | None = None) -> None:
+        """The window's loop until exit; ``screenshot``: write the last frame there (PNG) before closing."""
+        while not self.exit_requested:
+            start = time.monotonic()
+            self.frame()
+            time.sleep(max(0.0, _IDLE_FRAME_S - (time.monotonic() - start)))
+        if screenshot is not None:
+            self.screenshot(screenshot)
+        self.close()
+
+    # ------------------------------------------------------------------ the session
+    def _run_session(self) -> None:
+        from surrol_data.collect.devices import DeviceError
+        from surrol_data.collect.devices.keyboard import KeyTracker
+        from surrol_data.collect.haptic_source import collect_haptic
+
+        task, out = self.task, self.out / self.task
+        self.last_task = task
+        skill = "expert" if self.device == "operator" and self.skill == "unknown" else self.skill
+        self._session_running = True
+        self.status["text"] = f"recording into {out}"
+        self.keys.start()
+        tracker = KeyTracker(self.keys)
+        if self._preview_env is not None:
+            self._preview_env.close()
+            self._preview_env = None
+        try:
+            self.last_result = collect_haptic(
+                task, self.session_episodes, out, device=self.device, operator_id=self.operator_id or "anonymous",
+                skill=skill, seed=self.seed, keep_failures=True, append=(out / "meta" / "info.json").exists(), gui=False,
+                progress=False, command=f"surrol-data gui --out {self.out}", key_tracker=tracker,
+                on_step=self._on_step, env_kwargs={"render_mode": "rgb_array"}, max_attempts=SESSION_EPISODES)
+            self.status["text"] = f"saved {self.last_result.kept} episode(s)"
+        except (ValueError, RuntimeError, FileExistsError) as e:   # DeviceError is a RuntimeError
+            self.last_error = str(e) if not isinstance(e, DeviceError) else f"device: {e}"
+            self.status["text"] = self.last_error[:80]
+        finally:
+            self._session_running = False
+            self._stage_client = None
+            self.exit_requested = self.exit_requested or self.exit_after_session
+        if not self.exit_requested:
+            self.choose_task(task)
+
+    def autoplay(self, task: str, episodes: int) -> None:
+        """Choose ``task``, play, and exit once ``episodes`` episodes are saved (demos, screenshots, smoke tests)."""
+        self.choose_task(task)
+        self.session_episodes = episodes
+        self.exit_after_session = True
+        self.buttons["play"].commandFunc(None)
+
+    def _on_step(self, env, step: int, obs, info, flags) -> None:
+        if step == 1 and self._stage_client is not env.unwrapped.client:
+            self._show_env(env)
+        self.hud.update(step, info, flags)
+        self._draw()
+
+    # ------------------------------------------------------------------ output
+    def screenshot(self, path: str | Path) -> Path:
+        """Write the window as it is now (PNG)."""
+        from panda3d.core import Filename
+
+        self.base.graphicsEngine.render_frame()
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self.base.win.get_screenshot().write(Filename.from_os_specific(str(path)))
+        return path
+
+    def close(self) -> None:
+        if self._preview_env is not None:
+            self._preview_env.close()
+            self._preview_env = None
+        self.base.destroy()
