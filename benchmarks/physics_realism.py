@@ -33,9 +33,10 @@ from rich.progress import Progress
 from rich.table import Table
 
 import surrol_data.envs  # noqa: F401  (registers the ids)
-from surrol_data.envs import env_id, objects, peg_board
+from surrol_data.envs import env_id, objects, peg_board, physics
 from surrol_data.envs.psm import JAW_JOINTS
-from surrol_data.envs.psm_env import WORKSPACE
+from surrol_data.envs import kinematics as kin
+from surrol_data.envs.psm_env import WORKSPACE, WORKSPACE_MARGIN
 from surrol_data.envs.units import ACTION_POSITION_M, SCALING
 
 TASKS = ["NeedleReach", "GauzeRetrieve", "NeedlePick", "PegTransfer", "NeedleRegrasp", "BiPegTransfer"]
@@ -95,7 +96,7 @@ class Probe:
         self.static, self.objects = [], []
         for i in range(c.getNumBodies()):
             b = c.getBodyUniqueId(i)
-            if b in self.tools or not c.getCollisionShapeData(b, -1):
+            if b in self.tools or b == env.goal_marker or not has_collision_shape(c, b):
                 continue
             (self.static if c.getDynamicsInfo(b, -1)[0] == 0.0 else self.objects).append(b)
         self.pairs = ([("tool-static", a, b) for a in self.tools for b in self.static]
@@ -131,6 +132,14 @@ class Probe:
     def deepest(self, a: int, b: int) -> float:
         pts = self.env.client.getClosestPoints(a, b, 0.0)
         return -min((p[8] for p in pts), default=0.0) / SCALING
+
+
+def has_collision_shape(c, body: int) -> bool:
+    try:
+        with physics._stdout_silenced(fds=(2,)):   # PyBullet warns on stderr before it raises
+            return bool(c.getCollisionShapeData(body, -1))
+    except Exception:   # PyBullet raises for bodies without any shape (e.g. the endoscope's)
+        return False
 
 
 def relative_pose(c, body: int, obj: int) -> np.ndarray:
@@ -334,45 +343,55 @@ def run_drops(task: str, episodes: int) -> Result:
 
 
 def run_tracking(task: str, episodes: int) -> Result:
-    """Free-space tracking: from a point clear of everything, each action held 3 steps; error relative to 1 cm/unit."""
+    """Free-space tracking: from a point clear of everything, each action held 2 steps; the error is relative
+    to the commanded 1 cm per unit. Steps whose target is outside the clip box or the arm's reach, or during
+    which the tool touched anything, are not free-space moves and are skipped."""
     env = gym.make(env_id(task))
     u = env.unwrapped
     res = Result(task, "tracking")
-    corners = [np.array(v, float) for v in np.ndindex(3, 3, 3) if v != (1, 1, 1)]
-    corners = [v - 1.0 for v in corners]
+    corners = [np.array(v, float) - 1.0 for v in np.ndindex(3, 3, 3) if v != (1, 1, 1)]
     rng = np.random.default_rng(0)
     actions = corners + [rng.uniform(-1, 1, 3) for _ in range(max(episodes - len(corners), 4))]
     bimanual = hasattr(u, "psms")
     worst = 0.0
     for i, a in enumerate(actions):
         arm = i % 2 if bimanual else 0
+        psm = u.psms[arm] if bimanual else u.psm
         env.reset(seed=i)
         probe = Probe()
         probe.attach(u)
         ws = u.WORKSPACES[arm] if bimanual else WORKSPACE
         start = np.array([ws[0].mean(), ws[1].mean(), ws[2, 1] - 0.015])
+        held = bimanual and u.HELD_AT_START == arm
 
-        def act(delta, jaw=1.0):
+        def act(delta):
             full = np.zeros(10 if bimanual else 5)
             full[5 * arm: 5 * arm + 3] = delta
-            full[5 * arm + 4] = jaw
+            full[5 * arm + 4] = -1.0 if held else 1.0
             if bimanual:
-                full[5 * (1 - arm) + 4] = 1.0 if u.HELD_AT_START is None else -1.0
+                full[5 * (1 - arm) + 4] = -1.0 if u.HELD_AT_START == 1 - arm else 1.0
             return full
 
+        def tip():
+            return (u.tip_pose(arm) if bimanual else u.tip_pose())[:3, 3].copy()
+
         for _ in range(30):
-            err = (start - u.tip_pose(arm)[:3, 3] if bimanual else start - u.tip_pose()[:3, 3]) / ACTION_POSITION_M
+            err = (start - tip()) / ACTION_POSITION_M
             if np.linalg.norm(err) < 0.03:
                 break
-            timed_step(env, act(np.clip(err, -1, 1), 1.0 if arm or not bimanual or u.HELD_AT_START is None else -1),
-                       res, probe, [False, False])
-        for _ in range(3):
-            tip0 = (u.tip_pose(arm) if bimanual else u.tip_pose())[:3, 3].copy()
-            timed_step(env, act(a, 1.0 if arm or not bimanual or u.HELD_AT_START is None else -1), res, probe,
-                       [False, False])
-            moved = (u.tip_pose(arm) if bimanual else u.tip_pose())[:3, 3] - tip0
+            timed_step(env, act(np.clip(err, -1, 1)), res, probe, [held, False])
+        for _ in range(2):
+            tip0 = tip()
             want = a * ACTION_POSITION_M
-            worst = max(worst, float(np.linalg.norm(moved - want) / np.linalg.norm(want)))
+            target = tip0 + want
+            clipped = np.any(target < ws[:, 0] - WORKSPACE_MARGIN[:, 0]) or np.any(target > ws[:, 1]
+                                                                                    + WORKSPACE_MARGIN[:, 1])
+            reachable = psm.ik(kin.pose_from(target, (u.tip_pose(arm) if bimanual else u.tip_pose())[:3, :3]))
+            timed_step(env, act(a), res, probe, [held, False])
+            touched = bool(u.client.getContactPoints(bodyA=psm.body))
+            if clipped or not reachable.within_limits or touched:
+                continue
+            worst = max(worst, float(np.linalg.norm(tip() - tip0 - want) / np.linalg.norm(want)))
         res.merge_overlaps(probe)
         probe.detach(u)
         res.episodes += 1

@@ -28,6 +28,7 @@ import numpy as np
 
 from surrol_data.envs import kinematics as kin
 from surrol_data.envs import objects, physics
+from surrol_data.envs.adaptive_steps import SubstepPlanner
 from surrol_data.envs.ecm import SceneEndoscope
 from surrol_data.envs.grasp import Grasp
 from surrol_data.envs.psm import Psm
@@ -109,7 +110,8 @@ class BimanualEnv(PsmEnv):
         self.build_scene()
         self.goal_marker = objects.make_goal_marker(self.client, visual=self.visual)
         # Held objects do not collide with the holding jaws (see Grasp); the world is rebuilt every episode.
-        self.grasps = tuple(Grasp(self.client, psm, self.object_id) for psm in self.psms)
+        self.grasps = tuple(Grasp(self.client, psm, self.object_id, self.grasp_lift_condition) for psm in self.psms)
+        self._substeps = SubstepPlanner(self.client, self.grasps, self.dynamic_bodies)
 
     # ------------------------------------------------------------------ Gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
@@ -148,7 +150,9 @@ class BimanualEnv(PsmEnv):
         action = np.clip(action.reshape(2, 5), -1.0, 1.0)
         for i in range(2):
             self._apply_arm_action(i, action[i])
+        self._closing = tuple(g for g, arm_action in zip(self.grasps, action) if arm_action[4] < 0)
         self.simulate(physics.SUBSTEPS)
+        self._closing = ()
         for grasp, arm_action in zip(self.grasps, action):
             grasp.update(closing=arm_action[4] < 0)
         obs = self._get_obs()
@@ -158,7 +162,7 @@ class BimanualEnv(PsmEnv):
 
     # ------------------------------------------------------------------ internals
     def simulate(self, steps: int) -> None:
-        self._step_physics(steps)
+        self._step_physics(steps, self._closing)
         self._tips = [psm.tip_pose() for psm in self.psms]
 
     def tip_pose(self, arm: int = 0) -> np.ndarray:
@@ -183,7 +187,7 @@ class BimanualEnv(PsmEnv):
         else:
             angle = angle + action[3] * ACTION_YAW_RAD
         psm = self.psms[arm]
-        psm.command_tip(kin.pose_from(target, self._tool_rotation(arm, angle)))
+        psm.command_tip(kin.pose_from(target, self._tool_rotation(arm, angle)), ramp=True)
         psm.command_jaw(physics.JAW_CLOSED_RAD if action[4] < 0 else physics.JAW_OPEN_RAD)
 
     def robot_state(self) -> np.ndarray:
@@ -201,7 +205,8 @@ class BimanualEnv(PsmEnv):
         return {"is_success": float(self.is_success(obs["achieved_goal"], obs["desired_goal"])),
                 "tip_position": np.stack([state[0:3], state[7:10]]).astype(np.float32),
                 "jaw_angle": np.array([state[6], state[13]], dtype=np.float32),
-                "grasped": np.array([g.attached for g in self.grasps])}
+                "grasped": np.array([g.attached for g in self.grasps]),
+                "drops": sum(g.drops for g in self.grasps)}
 
     # ------------------------------------------------------------------ oracle
     @property

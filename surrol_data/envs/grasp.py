@@ -1,72 +1,135 @@
-"""Grasping by constraint: when both jaws touch the object while closing, fix the object to the wrist.
+"""Grasping as on the instrument: the object must lie between the blades, and a weld that can break.
 
-Friction grasps of millimetre objects need tiny time steps; a fixed constraint (as the dVRK simulators
-do) is stable at our control rate. The constraint holds the object at the relative pose it had when
-grasped, with a bounded force, and is removed when the jaw opens or neither jaw touches the object.
+1. **Squeeze.** While the jaw closes, the blades collide with the object and stop on it, so the jaw angle
+   reads the object's width.
+2. **Grip.** Once both blades touch the object *on their inner faces* (contact normal across the closing gap,
+   contact point along the blade, not past its end), the object is fixed to the wrist at the pose it has in
+   the hand by a constraint as strong as the squeeze's friction (``physics.GRASP_FRICTION_FORCE``). A closed
+   jaw poked onto an object or swiped into it touches it with a blade's end or outer face and never grips.
+3. **Weld.** Once the task's lift condition holds (the reference's ``_meet_contact_constraint_requirement``:
+   e.g. the needle lifted 5 mm), the constraint gets the weld's full force (``physics.GRASP_MAX_FORCE``).
+   The reference lifts by the friction of its squeezing jaws until then; PyBullet's contacts at our step
+   size are too soft to squeeze without the blades closing through the object, so the grip stands in for
+   that friction. While gripped or welded, the jaw is held at the angle it stopped at (it cannot close
+   through the object), and the blades stop colliding with the held object:
+   their contacts would only fight the weld (a block held by two hands gets twisted out of the second hand
+   once the first lets go) and would make carrying cost 2–3× the physics of a free move.
+4. **Drop.** The constraint's force is bounded (``physics.GRASP_MAX_FORCE``); pulled harder (the object caught on
+   a peg, pushed into the board), the object slips in the hand, and past ``physics.GRASP_MAX_SLIP_M`` it is
+   dropped: the weld goes, the jaw closes, ``drops`` counts it. Opening the jaw releases.
+
+PyBullet keys pair filters by body ids, which removed bodies hand on: envs release every grasp before they
+respawn bodies.
 """
 
 from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
 
 from surrol_data.envs import physics
 from surrol_data.envs.psm import EEF_LINK, JAW_JOINTS
 from surrol_data.envs.units import SCALING
 
 _TOUCH = physics.GRASP_CONTACT_DISTANCE_M * SCALING
-_KEEP = 3 * _TOUCH  # hysteresis: once held, the object may sit a little away from the blades
+_BLADE_LENGTH = physics.BLADE_LENGTH_M * SCALING
+_ACROSS = np.cos(np.deg2rad(45.0))   # contact normal within 45° of the inner-face normal
+# Direction from each blade towards the other, in the blade's link frame (blade 6 lies on +x, blade 7 on −x).
+_TOWARDS_OTHER = (-1.0, 1.0)
 
 
 class Grasp:
-    """While the constraint holds the object, the jaws do not collide with it (as in the reference's approximate
-    grasp); releasing restores the contacts. Why: the weld alone holds the object. Closing jaws sink about a
-    millimetre into a held object and their contacts then push against the constraint — a block held by two
-    hands gets twisted out of the second hand once the first lets go — and those contact rows make carrying
-    cost 2–3× the physics of a free move. The touch test ignores collision filters. PyBullet keys pair
-    filters by body ids, which removed bodies hand on: envs release every grasp before they respawn bodies."""
-
-    def __init__(self, client, psm, object_id: int, collide_while_held: bool = False):
+    def __init__(self, client, psm, object_id: int, lift_condition: Callable[[], bool] | None = None):
         self.client = client
         self.psm = psm
         self.object_id = object_id
-        self.collide_while_held = collide_while_held
+        self.lift_condition = lift_condition or (lambda: True)
         self.constraint: int | None = None
+        self.welded = False              # the full-strength weld (after the lift condition), not the grip
+        self.drops = 0                   # welds lost to force or slip while the jaw stayed closed
+        self._held_at: np.ndarray | None = None
 
     @property
     def attached(self) -> bool:
         return self.constraint is not None
 
-    def jaws_touching(self, distance: float) -> bool:
+    def between_blades(self) -> bool:
+        """Both blades touch the object on their inner faces, within the blade length."""
         if self.object_id < 0:
             return False
-        return all(self.client.getClosestPoints(self.psm.body, self.object_id, distance, linkIndexA=j)
-                   for j in JAW_JOINTS)
+        return all(self._inner_face_touch(j, towards) for j, towards in zip(JAW_JOINTS, _TOWARDS_OTHER))
+
+    def _inner_face_touch(self, link: int, towards_other: float) -> bool:
+        c = self.client
+        points = c.getClosestPoints(self.psm.body, self.object_id, _TOUCH, linkIndexA=link)
+        if not points:
+            return False
+        state = c.getLinkState(self.psm.body, link, computeForwardKinematics=True)
+        inv_pos, inv_quat = c.invertTransform(state[4], state[5])
+        for p in points:
+            along = c.multiplyTransforms(inv_pos, inv_quat, p[6], [0, 0, 0, 1])[0][1]
+            normal_x = c.multiplyTransforms([0, 0, 0], inv_quat, p[7], [0, 0, 0, 1])[0][0]
+            # p[7] points from the object to the blade: for an inner-face touch, away from the other blade.
+            if -towards_other * normal_x > _ACROSS and -_TOUCH <= along <= _BLADE_LENGTH:
+                return True
+        return False
+
+    def slip_m(self) -> float:
+        """How far (real metres) the held object has moved in the hand since the weld formed."""
+        if self._held_at is None:
+            return 0.0
+        return float(np.linalg.norm(self._relative_position() - self._held_at)) / SCALING
+
+    def grip_if_between(self) -> bool:
+        """Called after every physics substep while the jaw closes: grip the moment both blades touch the
+        object's sides. Checked per substep because a closing jaw crosses a 1.2 mm wire within one control
+        step, and the blades must stop where they meet it (PyBullet's contacts alone let the arm's motors push
+        a blade into the wire by a millimetre or more). Returns whether the object is now held."""
+        if self.constraint is None and self.between_blades():
+            self._attach(physics.GRASP_FRICTION_FORCE)
+        return self.constraint is not None
 
     def update(self, closing: bool) -> None:
         if not closing:
             self.release()
         elif self.constraint is None:
-            if self.jaws_touching(_TOUCH):
-                self._attach()
-        elif not self.jaws_touching(_KEEP):
+            if self.between_blades():
+                self._attach(physics.GRASP_FRICTION_FORCE)
+        elif self.slip_m() > physics.GRASP_MAX_SLIP_M:
+            self.drops += 1
             self.release()
+        elif not self.welded and self.lift_condition():
+            self.client.changeConstraint(self.constraint, maxForce=physics.GRASP_MAX_FORCE)
+            self.welded = True
 
     def attach(self) -> None:
         """Hold the object at its current pose relative to the wrist (a task that starts with it in hand)."""
         if self.constraint is None:
-            self._attach()
+            self._attach(physics.GRASP_MAX_FORCE)
 
-    def _attach(self) -> None:
+    def _relative_position(self) -> np.ndarray:
+        return np.asarray(self._relative_pose()[0])
+
+    def _relative_pose(self):
         c = self.client
         eef = c.getLinkState(self.psm.body, EEF_LINK, computeForwardKinematics=True)
         obj_pos, obj_quat = c.getBasePositionAndOrientation(self.object_id)
-        # Object pose in the wrist frame, so the constraint keeps the grasp exactly as found.
         inv_pos, inv_quat = c.invertTransform(eef[4], eef[5])
-        rel_pos, rel_quat = c.multiplyTransforms(inv_pos, inv_quat, obj_pos, obj_quat)
+        return c.multiplyTransforms(inv_pos, inv_quat, obj_pos, obj_quat)
+
+    def _attach(self, max_force: float) -> None:
+        c = self.client
+        # Object pose in the wrist frame, so the constraint keeps the grasp exactly as found.
+        rel_pos, rel_quat = self._relative_pose()
         self.constraint = c.createConstraint(self.psm.body, EEF_LINK, self.object_id, -1, c.JOINT_FIXED,
                                              [0, 0, 0], rel_pos, [0, 0, 0],
                                              parentFrameOrientation=rel_quat)
-        c.changeConstraint(self.constraint, maxForce=physics.GRASP_MAX_FORCE)
-        if not self.collide_while_held:
-            self._set_jaw_collisions(False)
+        c.changeConstraint(self.constraint, maxForce=max_force)
+        self.welded = max_force >= physics.GRASP_MAX_FORCE
+        self._held_at = np.asarray(rel_pos)
+        self.psm.stop_jaw_at(self.psm.jaw_angle())
+        self._set_jaw_collisions(False)
 
     def _set_jaw_collisions(self, enabled: bool) -> None:
         for j in JAW_JOINTS:
@@ -76,5 +139,7 @@ class Grasp:
         if self.constraint is not None:
             self.client.removeConstraint(self.constraint)
             self.constraint = None
-            if not self.collide_while_held:
-                self._set_jaw_collisions(True)
+            self.welded = False
+            self._held_at = None
+            self.psm.stop_jaw_at(None)
+            self._set_jaw_collisions(True)

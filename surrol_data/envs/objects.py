@@ -69,25 +69,42 @@ def make_table(client, visual: bool = True) -> int:
 
 
 def make_tray(client, with_pad: bool, origin_m=TRAY_ORIGIN, visual: bool = True) -> int:
-    """A static tray: thin base, four low walls and (optionally) a foam pad, as one compound body."""
+    """A static tray: thin base, four low walls and (optionally) a foam pad, as one compound body.
+
+    The collision shapes of the base and the pad reach ``physics.FLOOR_COLLISION_DEPTH_M`` down into the table
+    (static bodies do not collide with each other): an object driven into a 0.36 mm base or a 5 mm pad within
+    one physics step is then still inside a thick box, and the solver pushes it back out of the top instead
+    of through the bottom. Their visual shapes keep the reference's sizes.
+    """
     mm = 1e-3
-    parts = [  # (half extents, centre) in metres, tray frame
-        ((60 * mm, 98 * mm, 0.181 * mm), (0.0, 0.0, 0.0)),
+    depth = physics.FLOOR_COLLISION_DEPTH_M
+    walls = [  # (half extents, centre) in metres, tray frame
         ((60 * mm, 1.5 * mm, 11 * mm), (0.0, 95 * mm, 11 * mm)),
         ((60 * mm, 1.5 * mm, 11 * mm), (0.0, -95 * mm, 11 * mm)),
         ((1.5 * mm, 98 * mm, 11 * mm), (58 * mm, 0.0, 11 * mm)),
         ((1.5 * mm, 98 * mm, 11 * mm), (-58 * mm, 0.0, 11 * mm)),
     ]
+    base_top, pad_top = 0.181 * mm, 6.2 * mm
+    visual_parts = [((60 * mm, 98 * mm, 0.181 * mm), (0.0, 0.0, 0.0))] + walls
+    collision_parts = [((60 * mm, 98 * mm, (base_top + depth) / 2), (0.0, 0.0, (base_top - depth) / 2))] + walls
     colours = [GREY] * 5
     if with_pad:
-        parts.append(((50.5 * mm, 85 * mm, 2.6 * mm), (0.0, 0.0, 3.6 * mm)))
+        visual_parts.append(((50.5 * mm, 85 * mm, 2.6 * mm), (0.0, 0.0, 3.6 * mm)))
+        collision_parts.append(((50.5 * mm, 85 * mm, (pad_top + depth) / 2), (0.0, 0.0, (pad_top - depth) / 2)))
         colours.append(PAD_COLOUR)
-    half = [(np.asarray(h) * SCALING).tolist() for h, _ in parts]
-    centres = [(np.asarray(c) * SCALING).tolist() for _, c in parts]
-    n = len(parts)
+
+    def scaled(parts):
+        return ([(np.asarray(h) * SCALING).tolist() for h, _ in parts],
+                [(np.asarray(c) * SCALING).tolist() for _, c in parts])
+
+    n = len(collision_parts)
+    half, centres = scaled(collision_parts)
     col = client.createCollisionShapeArray([pb.GEOM_BOX] * n, halfExtents=half, collisionFramePositions=centres)
-    vis = client.createVisualShapeArray([pb.GEOM_BOX] * n, halfExtents=half, visualFramePositions=centres,
-                                        rgbaColors=colours) if visual else -1
+    vis = -1
+    if visual:
+        half, centres = scaled(visual_parts)
+        vis = client.createVisualShapeArray([pb.GEOM_BOX] * n, halfExtents=half, visualFramePositions=centres,
+                                            rgbaColors=colours)
     body = client.createMultiBody(0.0, col, vis, (np.asarray(origin_m) * SCALING).tolist())
     client.changeDynamics(body, -1, lateralFriction=physics.OBJECT_FRICTION)
     return body

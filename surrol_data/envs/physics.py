@@ -31,10 +31,13 @@ SETTLE_STEPS = 4                  # physics steps after a reset before the first
 PSM_POSITION_GAIN = 0.4
 PSM_VELOCITY_GAIN = 1.0
 PSM_MAX_FORCE = (60.0, 60.0, 60.0, 10.0, 10.0, 10.0)          # N·m / N (scaled scene)
-# Tip speed stays near 5–7 cm/s (the env's largest action, 1 cm per 0.2 s, is 5 cm/s): a faster tip moves
-# more than a millimetre per physics step and sinks that deep into the pad before contact stops it.
-PSM_MAX_VELOCITY = (0.35, 0.35, 0.07, 3.0, 3.0, 3.0)         # rad/s, m/s (real)
-JAW_MAX_FORCE = 4.0
+# Joint speed limits. A full diagonal action (1, ±1, ±1) asks for 17.3 mm of tip motion per 0.2 s step; with
+# the tip ~0.14 m below the RCM that needs ~0.6 rad/s of outer yaw/pitch and ~0.09 m/s of insertion, and the PD
+# must get there within the step. At (0.35, 0.35, 0.07) a (1, −1, 1) action moved 10–14 mm (41 % tracking
+# error, benchmarks/physics_realism.py "tracking"); at (1.0, 1.0, 0.2) every unit-box action is tracked within
+# ~1 %. Faster moves into contact are what the adaptive sub-steps below are for.
+PSM_MAX_VELOCITY = (1.0, 1.0, 0.2, 3.0, 3.0, 3.0)            # rad/s, m/s (real)
+JAW_MAX_FORCE = 1.0
 # Link inertia (scaled scene). Links whose inertia about their joint is near zero make the articulated
 # solver ill-conditioned: contacts then swing the jaws and wrist far from their targets.
 PSM_LINK_MASS = 0.1
@@ -54,11 +57,28 @@ ECM_SUBSTEPS = 24
 ECM_POSITION_GAIN = 0.1
 ECM_MAX_VELOCITY = (1.0, 1.0, 0.2, 2.0)   # yaw, pitch (rad/s), insertion (m/s), roll (rad/s)
 
+# A commanded tip move ramps the joint targets over this many of the control period's physics steps (then
+# holds): the PD then moves the tool at a steady speed instead of covering most of the move in its first two
+# physics steps at the joints' speed limits (peak tip speed ~3× lower for the same move, so impacts sink in
+# ~3× less), and the remaining steps let it settle, so a step still tracks its action within ~1 %.
+RAMP_STEPS = 8
+
+# Adaptive sub-stepping (adaptive_steps.py): a coarse step is split so that no fast body near another travels
+# more than this per physics step; contacts then catch it before it sinks deeper than about that much.
+MAX_TRAVEL_PER_STEP_M = 0.001
+MAX_REFINEMENT = 8
+
+# Thin static floors (the tray's 0.36 mm base, its 5.2 mm pad) get collision boxes this deep below their top.
+FLOOR_COLLISION_DEPTH_M = 0.01
+
 # Contact and grasp.
 JAW_FRICTION = 1.0
 OBJECT_FRICTION = 1.0
-GRASP_CONTACT_DISTANCE_M = 0.0008   # a jaw within this distance of the object "touches" it (real metres)
+GRASP_CONTACT_DISTANCE_M = 0.0002   # a jaw within this distance of the object "touches" it (real metres)
+BLADE_LENGTH_M = 0.0102             # jaw blade length (the reference's jaw collision box)
 GRASP_MAX_FORCE = 20.0
+GRASP_FRICTION_FORCE = 5.0
+GRASP_MAX_SLIP_M = 0.002            # a held object this far from where it was welded is dropped
 
 
 def scaled_velocity_limits() -> np.ndarray:

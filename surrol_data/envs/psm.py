@@ -29,6 +29,12 @@ _SHAFT_COLOUR = (0.55, 0.55, 0.6, 1.0)
 _WRIST_COLOUR = (0.3, 0.3, 0.35, 1.0)
 _JAW_COLOUR = (0.2, 0.2, 0.22, 1.0)
 
+_MOVING_JOINTS = ARM_JOINTS + JAW_JOINTS
+# Levers (real metres per scaled unit of joint motion) from joints 2–7 to the blade ends: insertion (scaled),
+# tool roll (blades within ~2 mm of the shaft axis), wrist pitch (wrist + blade), wrist yaw and the jaws (blade).
+_BLADE_LEVERS = (1.0 / SCALING, 0.002, kin.WRIST_LENGTH + kin.TIP_LENGTH, kin.TIP_LENGTH, kin.TIP_LENGTH,
+                 kin.TIP_LENGTH)
+
 # Jaw blade: 1.4 mm thick (opening direction), 10.2 mm long, 1.8 mm wide; offset so closed blades meet.
 _JAW_HALF = np.array([0.0007, 0.0051, 0.0009])
 
@@ -65,10 +71,17 @@ class Psm:
         self.world_T_rcm[:3, :3] = kin.rot_z3(rcm_yaw_rad)
         self.world_T_rcm[:3, 3] = rcm_position_m
         self.rcm_T_world = np.linalg.inv(self.world_T_rcm)
+        self._cid = client._client     # PyBullet's client id, for the per-physics-step calls (no wrapper)
         self.body = self._build()
         self._vmax = physics.scaled_velocity_limits()
-        self._q_target = np.zeros(6)
+        self._speed_caps = tuple(self._vmax) + (physics.JAW_MAX_VELOCITY,) * 2
+        self._motor_targets = (0.0,) * 8   # joints 0–7 as the motors have them (insertion scaled)
+        self._q_target = np.zeros(6)     # where the arm is going (the last accepted command)
+        self._q_from = np.zeros(6)       # where the ramp towards it started
+        self._q_motor = np.zeros(6)      # what the motors are set to now
+        self._ramp_done = True
         self._jaw_target = 0.0
+        self._jaw_stop: float | None = None
 
     # ------------------------------------------------------------------ construction
     def _build(self) -> int:
@@ -152,6 +165,7 @@ class Psm:
         """Replace the body by a fresh one from the same shapes: no solver or motor state survives."""
         self.client.removeBody(self.body)
         self.body = self._create_body()
+        self._jaw_stop = None
 
     # ------------------------------------------------------------------ state
     def reset_joints(self, q, jaw: float) -> None:
@@ -164,8 +178,10 @@ class Psm:
         for j, sign in zip(JAW_JOINTS, _JAW_SIGNS):
             c.resetJointState(self.body, j, sign * jaw / 2, 0.0)
         self._q_target = q.copy()
+        self._q_from = q.copy()
+        self._ramp_done = True
         self._jaw_target = jaw
-        self._apply_arm_targets()
+        self._apply_arm_targets(q)
         self._apply_jaw_target()
 
     def joint_positions(self) -> np.ndarray:
@@ -179,6 +195,21 @@ class Psm:
         v = np.array([s[1] for s in states])
         v[2] /= SCALING
         return v
+
+    def blade_speed_bound(self, dt: float) -> float:
+        """A bound (real m/s) on how fast any point of the blades may move during the next ``dt``: per joint the
+        faster of its current speed and the speed its motor may reach towards its target within ``dt`` (capped
+        by the joint's limit), times that joint's lever to the blade ends. (Plain floats: called every physics
+        step, where numpy's per-call overhead on 8-element arrays would cost more than the arithmetic.)"""
+        states = pb.getJointStates(self.body, _MOVING_JOINTS, physicsClientId=self._cid)
+        targets = self._motor_targets
+        caps = self._speed_caps
+        reach = states[2][0] / SCALING + kin.WRIST_LENGTH + kin.TIP_LENGTH   # RCM to blade ends, real metres
+        levers = (reach, reach) + _BLADE_LEVERS
+        bound = 0.0
+        for state, target, cap, lever in zip(states, targets, caps, levers):
+            bound += max(abs(state[1]), min(cap, abs(target - state[0]) / dt)) * lever
+        return bound
 
     def jaw_angle(self) -> float:
         a, b = self.client.getJointStates(self.body, JAW_JOINTS)
@@ -197,8 +228,11 @@ class Psm:
     def ik(self, tip_pose_world: np.ndarray) -> kin.IKResult:
         return kin.psm_ik(self.rcm_T_world @ tip_pose_world)
 
-    def command_tip(self, tip_pose_world: np.ndarray) -> bool:
-        """Set joint targets for a tip pose. Out-of-limit solutions are refused (the arm keeps its target)."""
+    def command_tip(self, tip_pose_world: np.ndarray, ramp: bool = False) -> bool:
+        """Set joint targets for a tip pose. Out-of-limit solutions are refused (the arm keeps its target).
+
+        ``ramp``: the motors' targets move there in straight joint-space steps as :meth:`ramp_targets` is called
+        (once per physics step), instead of jumping there at once; see ``physics.RAMP_STEPS``."""
         sol = self.ik(tip_pose_world)
         if not sol.within_limits:
             return False
@@ -208,25 +242,51 @@ class Psm:
             if kin.PSM_LOWER[3] <= cand <= kin.PSM_UPPER[3] and abs(cand - self._q_target[3]) < abs(q[3] - self._q_target[3]):
                 q[3] = cand
         self._q_target = q
-        self._apply_arm_targets()
+        if ramp:
+            self._q_from = self._q_motor.copy()
+            self._ramp_done = False
+        else:
+            self._ramp_done = True
+            self._apply_arm_targets(q)
         return True
 
+    def ramp_targets(self, step: int) -> None:
+        """Before physics step ``step`` (0-based) of a control period: advance the motor targets along the ramp."""
+        if self._ramp_done:
+            return
+        f = (step + 1) / physics.RAMP_STEPS
+        if f >= 1.0:
+            self._ramp_done = True
+            self._apply_arm_targets(self._q_target)
+        else:
+            self._apply_arm_targets(self._q_from + (self._q_target - self._q_from) * f)
+
     def command_jaw(self, angle: float) -> None:
-        self._jaw_target = float(np.clip(angle, *kin.JAW_LIMITS))
+        angle = float(np.clip(angle, *kin.JAW_LIMITS))
+        self._jaw_target = angle if self._jaw_stop is None else max(angle, self._jaw_stop)
         self._apply_jaw_target()
 
-    def _apply_arm_targets(self) -> None:
-        c = self.client
-        targets = self._q_target.copy()
+    def stop_jaw_at(self, angle: float | None) -> None:
+        """Close no further than ``angle`` (rad) — a welded object between the blades — or, None, freely."""
+        self._jaw_stop = angle
+        if angle is not None and self._jaw_target < angle:
+            self._jaw_target = angle
+            self._apply_jaw_target()
+
+    def _apply_arm_targets(self, q: np.ndarray) -> None:
+        self._q_motor = np.array(q, dtype=np.float64)
+        targets = self._q_motor.tolist()
         targets[2] *= SCALING
+        self._motor_targets = tuple(targets) + self._motor_targets[6:]
         for k, j in enumerate(ARM_JOINTS):
-            c.setJointMotorControl2(self.body, j, pb.POSITION_CONTROL, targetPosition=float(targets[k]),
-                                    targetVelocity=0.0, positionGain=physics.PSM_POSITION_GAIN,
-                                    velocityGain=physics.PSM_VELOCITY_GAIN, force=physics.PSM_MAX_FORCE[k],
-                                    maxVelocity=float(self._vmax[k]))
+            pb.setJointMotorControl2(self.body, j, pb.POSITION_CONTROL, targetPosition=targets[k],
+                                     targetVelocity=0.0, positionGain=physics.PSM_POSITION_GAIN,
+                                     velocityGain=physics.PSM_VELOCITY_GAIN, force=physics.PSM_MAX_FORCE[k],
+                                     maxVelocity=float(self._vmax[k]), physicsClientId=self._cid)
 
     def _apply_jaw_target(self) -> None:
         c = self.client
+        self._motor_targets = self._motor_targets[:6] + tuple(sign * self._jaw_target / 2 for sign in _JAW_SIGNS)
         for j, sign in zip(JAW_JOINTS, _JAW_SIGNS):
             c.setJointMotorControl2(self.body, j, pb.POSITION_CONTROL, targetPosition=sign * self._jaw_target / 2,
                                     targetVelocity=0.0,

@@ -16,6 +16,7 @@ from gymnasium import spaces
 
 from surrol_data.envs import kinematics as kin
 from surrol_data.envs import objects, physics
+from surrol_data.envs.adaptive_steps import SubstepPlanner
 from surrol_data.envs.ecm import SceneEndoscope
 from surrol_data.envs.grasp import Grasp
 from surrol_data.envs.psm import Psm
@@ -24,8 +25,9 @@ from surrol_data.envs.units import ACTION_POSITION_M, ACTION_YAW_RAD, SCALING, S
 # PSM1's remote centre of motion (real metres) and the tip workspace the tasks sample from.
 PSM1_RCM = np.array([0.507, 0.0736, 0.8524])
 WORKSPACE = np.array([[0.50, 0.60], [-0.05, 0.05], [0.675, 0.745]])
-# Commanded tip targets may leave the sampling workspace by this much (low side, high side).
-WORKSPACE_MARGIN = np.array([[0.02, 0.02], [0.02, 0.02], [0.0, 0.08]])
+# Commanded tip targets may leave the sampling workspace by this much (low side, high side): the reference's
+# margins (±0.02 xy, +0.08 z) are in its scaled units, i.e. ±4 mm / +16 mm real.
+WORKSPACE_MARGIN = np.array([[0.02, 0.02], [0.02, 0.02], [0.0, 0.08]]) / SCALING
 # Tool-down tip frame: columns are tip x (wrist-yaw axis), tip y (jaw-opening direction), tip z (down).
 _TOOL_DOWN = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 
@@ -60,6 +62,7 @@ class PsmEnv(gym.Env):
     # Instrumentation: when set (on an instance), called as ``substep_hook(env)`` after every physics substep
     # (benchmarks/physics_realism.py probes contacts there). Unset, it costs one attribute test per substep.
     substep_hook = None
+    _closing: tuple = ()      # grasps whose jaws close during the current step (they may grip at any substep)
 
     def __init__(self, render_mode: str | None = None, render_size: tuple[int, int] = (480, 360),
                  camera: bool = False, camera_size: tuple[int, int] = (128, 128), camera_renderer: str = "tiny"):
@@ -96,7 +99,8 @@ class PsmEnv(gym.Env):
         self.object_id = -1
         self.build_scene()
         self.goal_marker = objects.make_goal_marker(self.client, visual=self.visual)
-        self.grasp = Grasp(self.client, self.psm, self.object_id)
+        self.grasp = Grasp(self.client, self.psm, self.object_id, self.grasp_lift_condition)
+        self._substeps = SubstepPlanner(self.client, (self.grasp,), self.dynamic_bodies)
 
     # ------------------------------------------------------------------ to be declared by tasks
     def build_scene(self) -> None:
@@ -124,6 +128,11 @@ class PsmEnv(gym.Env):
         """Waypoints for the oracle, computed at reset from the settled scene."""
         return []
 
+    def grasp_lift_condition(self) -> bool:
+        """The task's condition for welding an object the blades hold (reference §3), e.g. the needle lifted
+        5 mm by the squeezing jaws. ``object_start_z`` is the achieved goal's height when the episode began."""
+        return True
+
     def is_success(self, achieved_goal, desired_goal) -> np.ndarray:
         d = np.linalg.norm(np.asarray(achieved_goal) - np.asarray(desired_goal), axis=-1)
         return d < SUCCESS_TOLERANCE_M
@@ -136,6 +145,7 @@ class PsmEnv(gym.Env):
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
         self.grasp.release()
+        self.grasp.drops = 0
         # Fresh dynamic bodies every episode: PyBullet keeps hidden per-body state (solver warm starts,
         # sleeping timers) that neither resetting poses nor restoring a saved state clears, and equal seeds
         # must give equal episodes bit for bit. Their shapes are reused; the whole reset takes about 2 ms.
@@ -157,6 +167,7 @@ class PsmEnv(gym.Env):
     def _start_episode(self):
         """After the scene has settled: draw the goal, plan the oracle, and return the first (obs, info)."""
         self.goal = np.asarray(self.sample_goal(self.np_random), dtype=np.float64)
+        self.object_start_z = float(self.achieved_goal()[2])
         self.client.resetBasePositionAndOrientation(self.goal_marker, (self.goal * SCALING).tolist(), [0, 0, 0, 1])
         self._waypoints = self.plan_oracle()
         self._wp_index = 0
@@ -167,9 +178,12 @@ class PsmEnv(gym.Env):
     def step(self, action):
         action = np.clip(np.asarray(action, dtype=np.float64).reshape(5), -1.0, 1.0)
         self._apply_action(action)
+        closing = not self.BLOCK_JAW and action[4] < 0
+        self._closing = (self.grasp,) if closing else ()
         self.simulate(physics.SUBSTEPS)
+        self._closing = ()
         if not self.BLOCK_JAW:
-            self.grasp.update(closing=action[4] < 0)
+            self.grasp.update(closing=closing)
         obs = self._get_obs()
         info = self._info(obs)
         reward = float(self.compute_reward(obs["achieved_goal"], obs["desired_goal"]))
@@ -193,15 +207,33 @@ class PsmEnv(gym.Env):
     # ------------------------------------------------------------------ internals
     def simulate(self, steps: int) -> None:
         """Advance the physics and refresh the cached tip pose (read by observation, action and oracle)."""
-        self._step_physics(steps)
+        self._step_physics(steps, self._closing)
         self._tip = self.psm.tip_pose()
 
-    def _step_physics(self, steps: int) -> None:
+    def dynamic_bodies(self) -> list[int]:
+        """The scene's movable objects (the adaptive sub-stepping watches their speed)."""
+        return [self.object_id] if self.object_id >= 0 else []
+
+    def _step_physics(self, steps: int, closing: tuple[Grasp, ...] = ()) -> None:
+        """``steps`` physics substeps, each split into finer ones where something fast is about to hit something
+        (see adaptive_steps); the grasps of closing jaws in ``closing`` may grip after any of them."""
         hook = self.substep_hook
-        for _ in range(steps):
-            self.client.stepSimulation()
-            if hook is not None:
-                hook(self)
+        watched = [g for g in closing if not g.attached]
+        c = self.client
+        for i in range(steps):
+            for grasp in self._substeps.grasps:
+                grasp.psm.ramp_targets(i)
+            k = self._substeps.refinement(physics.TIME_STEP)
+            if k > 1:
+                c.setPhysicsEngineParameter(fixedTimeStep=physics.TIME_STEP / k)
+            for _ in range(k):
+                c.stepSimulation()
+                if watched:
+                    watched = [g for g in watched if not g.grip_if_between()]
+                if hook is not None:
+                    hook(self)
+            if k > 1:
+                c.setPhysicsEngineParameter(fixedTimeStep=physics.TIME_STEP)
 
     def tip_pose(self) -> np.ndarray:
         return self._tip
@@ -213,7 +245,7 @@ class PsmEnv(gym.Env):
         yaw = tip_orientation_features(pose[:3, :3])[2]
         if not self.FIXED_YAW:
             yaw = yaw + action[3] * ACTION_YAW_RAD
-        self.psm.command_tip(kin.pose_from(target, tool_down(yaw)))
+        self.psm.command_tip(kin.pose_from(target, tool_down(yaw)), ramp=True)
         if self.BLOCK_JAW or action[4] < 0:
             self.psm.command_jaw(physics.JAW_CLOSED_RAD)
         else:
@@ -244,7 +276,7 @@ class PsmEnv(gym.Env):
         return {"is_success": float(self.is_success(obs["achieved_goal"], obs["desired_goal"])),
                 "tip_position": obs["observation"][None, :3].copy(),
                 "jaw_angle": obs["observation"][None, 6].copy(),
-                "grasped": self.grasp.attached}
+                "grasped": self.grasp.attached, "drops": self.grasp.drops}
 
     # ------------------------------------------------------------------ oracle
     @property

@@ -22,6 +22,7 @@ class GauzeRetrieve(PsmEnv):
     GRASP_BELOW_CENTRE_M = 0.0007    # tip this far below the gauze centre: blades cover most of its height
     APPROACH_HEIGHT_M = 0.005
     LIFT_M = 0.005
+    WELD_LIFT_M = 0.0025             # the weld forms once the squeezing jaws have lifted the gauze this much (reference)
 
     def build_scene(self) -> None:
         objects.make_tray(self.client, with_pad=False, origin_m=objects.BARE_TRAY_ORIGIN, visual=self.visual)
@@ -45,6 +46,9 @@ class GauzeRetrieve(PsmEnv):
     def sample_goal(self, rng):
         xy = WORKSPACE[:2].mean(axis=1) + rng.normal(0.0, self.GOAL_XY_SIGMA_M, size=2)
         return np.array([xy[0], xy[1], WORKSPACE[2, 1] - self.GOAL_BELOW_TOP_M])
+
+    def grasp_lift_condition(self) -> bool:
+        return self.achieved_goal()[2] > self.object_start_z + self.WELD_LIFT_M
 
     def gauze_pose(self) -> tuple[np.ndarray, np.ndarray]:
         pos, quat = self.client.getBasePositionAndOrientation(self.object_id)

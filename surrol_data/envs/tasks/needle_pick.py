@@ -17,6 +17,10 @@ class NeedlePick(NeedleTaskBase):
     GOAL_Z_M = 0.7152
     ORACLE_GAIN = 0.4
     GRASP_DEPTH_M = 0.0002   # tip this far below the wire centre line: blades straddle the wire, clear of the pad
+    LIFT_M = 0.005           # the weld forms once the squeezing jaws have lifted the needle this much (reference)
+
+    def grasp_lift_condition(self) -> bool:
+        return self.achieved_goal()[2] > self.object_start_z + self.LIFT_M
 
     def reset_task(self, rng):
         self.place_needle(rng)

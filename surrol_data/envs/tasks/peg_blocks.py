@@ -41,11 +41,19 @@ class PegBlocksScene:
             peg_board.place_block_on_peg(self.client, body, self.board, int(peg), float(yaw))
         self.start_peg = int(pegs[0])
 
+    def dynamic_bodies(self) -> list[int]:
+        return list(self.blocks)
+
     def sleep_blocks(self) -> None:
         # Resting blocks sleep until a jaw or another block touches them: their contacts with the pegs and
         # the board would otherwise be most of a step's physics.
         for body in self.blocks:
             self.client.changeDynamics(body, -1, activationState=physics.pb.ACTIVATION_STATE_SLEEP)
+
+    WELD_ABOVE_GOAL_PEG_M = 0.01     # the weld forms once the squeezed block is this far above the goal peg's origin
+
+    def grasp_lift_condition(self) -> bool:
+        return self.achieved_goal()[2] > self.goal[2] + self.WELD_ABOVE_GOAL_PEG_M
 
     def sample_goal(self, rng):
         self.goal_peg = int(rng.choice(list(self.GOAL_PEGS)))
