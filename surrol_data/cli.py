@@ -2,16 +2,12 @@
 
 from __future__ import annotations
 
-import os
 import shlex
 import sys
 from enum import Enum
 from pathlib import Path
 from typing import Optional
 
-# Datasets are local: never let lerobot / huggingface_hub reach for the Hub behind the user's back.
-os.environ.setdefault("HF_HUB_OFFLINE", "1")
-os.environ.setdefault("SVT_LOG", "1")
 
 import typer  # noqa: E402
 from rich.console import Console  # noqa: E402

@@ -69,6 +69,7 @@ import pyarrow.parquet as pq
 
 from surrol_data.collect import journal
 from surrol_data.datasets.card import write_dataset_card
+from surrol_data.datasets.hub_offline import hub_offline, quiet_video_encoder
 from surrol_data.datasets.info import read_sidecar
 from surrol_data.datasets.lock import DatasetLock
 from surrol_data.datasets.reader import (
@@ -93,19 +94,14 @@ from surrol_data.datasets.schema import (
 )
 from surrol_data.datasets.trajectory import DEVICE_FLAGS, Trajectory
 
-# Before any lerobot import: a dataset with a missing metadata file makes lerobot fall back to the Hub;
-# offline, that fails fast instead of doing DNS lookups. SVT_LOG silences ~20 encoder lines per episode.
-os.environ.setdefault("HF_HUB_OFFLINE", "1")
-os.environ.setdefault("SVT_LOG", "1")
-
 ROBOT_TYPE = "dvrk_psm"
 VIDEO_BACKEND = "pyav"  # explicit: avoids torchcodec probing (and its 60-line warning without system ffmpeg)
 REPAIR_DIR = ".surrol_data_repair"
 
 
 def _lerobot_dataset_class():
-    """``LeRobotDataset``, imported on first use (~6 s, ~0.9 GB)."""
-    os.environ.setdefault("HF_HUB_OFFLINE", "1")
+    """``LeRobotDataset``, imported on first use (~6 s, ~0.9 GB). Open local datasets under
+    :func:`surrol_data.datasets.hub_offline.hub_offline`."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     return LeRobotDataset
@@ -291,15 +287,17 @@ class DatasetRecorder:
         if self._exists:
             self._lock.acquire()  # before touching anything: a second writer gets a clear error
             try:
-                self._ds = LeRobotDataset.resume(self.repo_id, root=self.root, video_backend=VIDEO_BACKEND)
+                with hub_offline():
+                    self._ds = LeRobotDataset.resume(self.repo_id, root=self.root, video_backend=VIDEO_BACKEND)
             except BaseException:
                 self._lock.release()
                 raise
         else:
             # create() makes the folder (and refuses an existing one: a concurrent creator loses there).
-            self._ds = LeRobotDataset.create(self.repo_id, fps=FPS, features=self.features, root=self.root,
-                                             robot_type=self.robot_type, use_videos=True,
-                                             video_backend=VIDEO_BACKEND, metadata_buffer_size=1)
+            with hub_offline():
+                self._ds = LeRobotDataset.create(self.repo_id, fps=FPS, features=self.features, root=self.root,
+                                                 robot_type=self.robot_type, use_videos=True,
+                                                 video_backend=VIDEO_BACKEND, metadata_buffer_size=1)
             self._lock.acquire()
             self._exists = True
             self._created = True
@@ -441,7 +439,8 @@ class DatasetRecorder:
             journal.write_entry(self.root, episode_index, traj, prov)
             self._pending_columns = {PROVENANCE_PREFIX + k: v for k, v in prov.items()}
             try:
-                ds.save_episode(episode_data=episode_data)
+                with hub_offline(), quiet_video_encoder():
+                    ds.save_episode(episode_data=episode_data)
             except BaseException:
                 journal.entry_path(self.root, episode_index).unlink(missing_ok=True)  # not recorded after all
                 raise
@@ -462,8 +461,9 @@ class DatasetRecorder:
         with self._hold_signals():
             if not _close_files_and_continue(self._ds):
                 self._ds.finalize()
-                self._ds = _lerobot_dataset_class().resume(self.repo_id, root=self.root,
-                                                           video_backend=VIDEO_BACKEND)
+                with hub_offline():
+                    self._ds = _lerobot_dataset_class().resume(self.repo_id, root=self.root,
+                                                               video_backend=VIDEO_BACKEND)
                 self._prepare_writer()
             self._durable = self._ds.meta.total_episodes
             self._since_checkpoint = 0

@@ -85,7 +85,11 @@ class _VideoFrames:
         from surrol_data.collect.recorder import VIDEO_BACKEND, _lerobot_dataset_class
 
         self.keys = [k for k, ft in reader.features.items() if ft["dtype"] == "video"]
-        self.ds = _lerobot_dataset_class()(f"local/{reader.root.name}", root=reader.root, video_backend=VIDEO_BACKEND)
+        from surrol_data.datasets.hub_offline import hub_offline
+
+        with hub_offline():
+            self.ds = _lerobot_dataset_class()(f"local/{reader.root.name}", root=reader.root,
+                                               video_backend=VIDEO_BACKEND)
 
     def episode(self, ep: int) -> dict[str, np.ndarray]:
         row = self.ds.meta.episodes[int(ep)]

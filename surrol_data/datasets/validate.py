@@ -21,7 +21,6 @@ Each problem names the file / episode / column and says what to do.
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -695,13 +694,15 @@ def _check_reward(side: dict, meta: pa.Table, data: pa.Table) -> list[Problem]:
 
 
 def _check_lerobot(root: Path, info: dict) -> list[Problem]:
-    os.environ.setdefault("HF_HUB_OFFLINE", "1")
+    from surrol_data.datasets.hub_offline import hub_offline
+
     try:
         from surrol_data.collect.recorder import VIDEO_BACKEND, _lerobot_dataset_class
 
         side = read_sidecar(root)
-        ds = _lerobot_dataset_class()(side.get("repo_id") or f"local/{root.name}", root=root,
-                                      video_backend=VIDEO_BACKEND)
+        with hub_offline():
+            ds = _lerobot_dataset_class()(side.get("repo_id") or f"local/{root.name}", root=root,
+                                          video_backend=VIDEO_BACKEND)
         if ds.num_episodes != int(info["total_episodes"]) or ds.num_frames != int(info["total_frames"]):
             return [Problem("lerobot", str(root), f"LeRobotDataset sees {ds.num_episodes} episodes / {ds.num_frames} "
                                                   f"frames, info.json says {info['total_episodes']} / "

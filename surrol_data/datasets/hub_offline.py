@@ -1,0 +1,39 @@
+"""Keep the Hugging Face Hub out of local dataset work, without touching the process environment at import.
+
+lerobot falls back to the Hub when a local dataset lacks a metadata file (it tries to download it). For our
+local datasets that must fail at once, not reach out. :func:`hub_offline` switches huggingface_hub's own offline
+flag — the one its HTTP hook checks before every request — for the duration of a block and restores it, so the
+user's own code around ours keeps its Hub access. SVT-AV1 prints ~20 lines per encoded episode unless ``SVT_LOG``
+is set; :func:`quiet_video_encoder` sets it for the block only.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+
+
+@contextlib.contextmanager
+def hub_offline():
+    """huggingface_hub refuses every request inside the block (``OfflineModeIsEnabled``)."""
+    from huggingface_hub import constants
+
+    saved = constants.HF_HUB_OFFLINE
+    constants.HF_HUB_OFFLINE = True
+    try:
+        yield
+    finally:
+        constants.HF_HUB_OFFLINE = saved
+
+
+@contextlib.contextmanager
+def quiet_video_encoder():
+    """SVT-AV1 logs errors only inside the block (the user's own ``SVT_LOG`` wins if set)."""
+    saved = os.environ.get("SVT_LOG")
+    if saved is None:
+        os.environ["SVT_LOG"] = "1"
+    try:
+        yield
+    finally:
+        if saved is None:
+            os.environ.pop("SVT_LOG", None)
