@@ -41,6 +41,7 @@ os.environ.setdefault("SVT_LOG", "1")
 
 # The heavy imports start helper threads; each forked trial only runs our own code, which starts none first.
 warnings.filterwarnings("ignore", message=".*fork.*", category=DeprecationWarning)
+warnings.filterwarnings("ignore", message="Cannot enable progress bars")
 
 from rich.console import Console  # noqa: E402
 from rich.table import Table  # noqa: E402
