@@ -41,6 +41,7 @@ os.environ.setdefault("SVT_LOG", "1")
 
 # The heavy imports start helper threads; each forked trial only runs our own code, which starts none first.
 warnings.filterwarnings("ignore", message=".*fork.*", category=DeprecationWarning)
+warnings.filterwarnings("ignore", message="Cannot enable progress bars")
 
 from rich.console import Console  # noqa: E402
 from rich.table import Table  # noqa: E402
@@ -199,7 +200,10 @@ def _check_dataset(root: Path, expected: int, haptic: bool) -> dict:
         if haptic:
             traces = [root / "meta" / "device_traces" / f"episode_{ep:06d}.npz" for ep in range(len(reader))]
             result["traces"] = all(t.exists() for t in traces)
-        result["valid"] = validate_dataset(root, check_reward=False, check_lerobot=False) == []
+        problems = validate_dataset(root, check_reward=False, check_lerobot=False)
+        result["valid"] = problems == []
+        if problems:
+            result["problems"] = [str(p) for p in problems]
     except Exception as e:  # noqa: BLE001 - a dataset that cannot be opened is the finding
         result["error"] = f"{type(e).__name__}: {e}"
     return result
@@ -276,7 +280,8 @@ def summarize_kills(runs: list[Trial], bases: dict) -> Table:
                   "opens": all(c["opens"] for c in checks), "repaired": any(c["repaired"] for c in checks),
                   "traces": None if trial.path not in HAPTIC else all(c["traces"] is not False for c in checks),
                   "valid": all(c["valid"] for c in checks), "errors": [c["error"] for c in checks if "error" in c]}
-        if merged["errors"] or merged["lost"]:
+        merged["problems"] = [p for c in checks for p in c.get("problems", [])]
+        if merged["errors"] or merged["lost"] or merged["problems"]:
             print(f"  {trial.path} {trial.sig} {trial.out}: {merged}", file=sys.stderr)
         groups.setdefault((trial.path, "SIGKILL" if trial.sig == "KILL" else "SIGTERM/SIGINT"), []).append(merged)
     totals = {"lost": 0, "trials": 0, "open": 0, "traces_missing": 0}

@@ -150,7 +150,8 @@ def repair(root: str | Path) -> RepairReport:
         report, salvage, info = _cut_back(root)
     if salvage:
         _replay(root, info, salvage, report)
-    if report.backup_dir is not None or salvage:
+    sessions = read_sidecar(root).get("sessions") or []
+    if report.backup_dir is not None or salvage or any("ended_at" not in s for s in sessions):
         _mark_sessions_ended(root, report)
         write_dataset_card(root)
     return report
@@ -340,10 +341,19 @@ def _replay(root: Path, info: dict, salvage: list, report: RepairReport) -> None
                                command=side.get("sessions", [{}])[-1].get("command", "surrol-data repair"),
                                handle_signals=False, checkpoint_every=10_000, checkpoint_interval_s=None,
                                _repairing=True)
+    entries = dict(journal.entries(root))
     with recorder:
         for ep, (traj, provenance) in salvage:
             provenance = {k: v for k, v in provenance.items() if k in PROVENANCE_COLUMNS}
-            new = recorder.record(traj, provenance)
+            try:
+                new = recorder.record(traj, provenance)
+            except ValueError as e:  # a damaged journal entry or metadata row: dropped, and said why
+                report.dropped.append((ep, f"its saved copy cannot be recorded again ({e})"))
+                if ep in entries and report.backup_dir:
+                    dest = Path(report.backup_dir) / journal.JOURNAL_DIR / entries[ep].name
+                    dest.parent.mkdir(parents=True, exist_ok=True)
+                    shutil.move(str(entries[ep]), str(dest))
+                continue
             renames.append((ep, new))
             report.frames += len(traj)
     if not kept:  # move the freshly written files into the dataset (its own versions were moved aside)

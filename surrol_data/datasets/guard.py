@@ -3,7 +3,7 @@
 1. :func:`ensure_finished`: a dataset left by a killed writer is repaired automatically, saying so on stderr
    (the same as ``surrol-data repair DIR``); one being written by a live process is refused.
 2. :func:`require_valid`: the cheap checks of :func:`surrol_data.datasets.validate.validate_dataset` (no env,
-   no lerobot import); a damaged dataset is refused with the validator's own messages.
+   no lerobot import, videos only demuxed); a damaged dataset is refused with the validator's own messages.
 """
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ def require_valid(root: str | Path, notify: Callable[[str], None] = _stderr) -> 
     from surrol_data.datasets.validate import validate_dataset
 
     ensure_finished(root, notify)
-    problems = validate_dataset(root, check_reward=False, check_lerobot=False, check_videos=False)
+    problems = validate_dataset(root, check_reward=False, check_lerobot=False)
     if problems:
         listed = "\n  ".join(str(p) for p in problems)
         raise DatasetError(f"{root} is damaged ({len(problems)} problem(s)); nothing was done:\n  {listed}\n"

@@ -457,17 +457,19 @@ def _check_stats(root: Path, info: dict, meta_full: pa.Table, data: pa.Table) ->
     floats = [k for k, ft in info["features"].items() if ft["dtype"].startswith("float") and k in data.column_names]
     bad_episode: dict[str, list[int]] = {}
     agg: dict[str, dict] = {}
+    arrays = {k: column_to_numpy(data.column(k)).reshape(data.num_rows, -1).astype(np.float64) for k in floats}
+    stored_stats = {c: meta_full.column(c).to_pylist() for c in meta_full.column_names if c.startswith("stats/")}
     for row, (ep, start, length) in enumerate(_episode_slices(meta_full)):
         for k in floats:
-            values = column_to_numpy(data.column(k)).reshape(data.num_rows, -1)[start:start + length].astype(np.float64)
+            values = arrays[k][start:start + length]
             if not len(values) or not np.isfinite(values).all():
                 continue
             got = {"min": values.min(0), "max": values.max(0), "mean": values.mean(0)}
             for stat, value in got.items():
                 col = f"stats/{k}/{stat}"
-                if col not in meta_full.column_names:
+                if col not in stored_stats:
                     continue
-                stored = meta_full.column(col)[row].as_py()
+                stored = stored_stats[col][row]
                 if stored is None or not np.allclose(np.asarray(stored, np.float64).reshape(-1), value, **_STAT_TOL):
                     bad_episode.setdefault(f"{k} {stat}", []).append(ep)
             a = agg.setdefault(k, {"min": got["min"], "max": got["max"], "sum": np.zeros_like(got["mean"]), "n": 0})
