@@ -117,6 +117,15 @@ def test_warm_start_holds_the_actor_then_ramps_the_q_term():
     assert np.mean(losses[-20:]) < 0.5 * np.mean(losses[:5])
 
 
+def test_a_batched_sweep_expands_like_hydras_basic_sweeper():
+    from surrol_data.train_app import sweep_jobs
+
+    jobs = sweep_jobs(["seed=0,1", "demos=script,expert", "experiment=paper", "algo.params.hidden_sizes=[64,64]"])
+    assert len(jobs) == 4 and ["seed=1", "demos=expert", "experiment=paper", "algo.params.hidden_sizes=[64,64]"] in jobs
+    with pytest.raises(ValueError, match="share task, algo and experiment"):
+        train_batched([run_config("/tmp/a", "/x", 0), run_config("/tmp/b", "/x", 1, bc_weight=1.0)], progress=False)
+
+
 # --- whole runs ---------------------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
