@@ -167,6 +167,7 @@ def paper_protocol(args, console: Console) -> None:
     console.print(f"{len(jobs)} runs, {flops / 1e9:.2f} GFLOP per run-update, matmul peak {peak:.0f} GFLOP/s "
                   f"(1 thread, ({len(jobs)}, 128, {hidden[0]}) x ({hidden[0]}, {hidden[0]}) bmm)"
                   + (f"; {', '.join(substituted)} demos replaced by script demos (no NeedlePick_human)" if substituted else ""))
+    peak_before = peak
     t0 = time.perf_counter()
     runs = train_batched(jobs, overlap=not args.no_overlap, n_workers=cfg0.schedule.n_envs, progress=True)
     batched_wall = time.perf_counter() - t0
@@ -174,6 +175,9 @@ def paper_protocol(args, console: Console) -> None:
     single_rows = train(baseline) if args.baseline_epochs > 0 else []
     single_wall = time.perf_counter() - t0
 
+    # the machine is shared: take the better of two peak measurements, one before and one after the training
+    peak = max(peak_before, matmul_peak_gflops(len(jobs), int(cfg0.learner_params["batch_size"]), hidden[0]))
+    console.print(f"matmul peak: {peak_before:.0f} GFLOP/s before, {peak:.0f} GFLOP/s best (used below)")
     rows = runs[0]
     m = len(jobs)
     table = Table(title=f"paper protocol, {m} runs as one batched ensemble (overlap={not args.no_overlap})")

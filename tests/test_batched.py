@@ -23,7 +23,9 @@ from surrol_data.algos.train_batched import train_batched
 REACH = "SurRoL/NeedleReach-v0"
 REPO = Path(__file__).resolve().parents[1]
 CLI = [sys.executable, "-m", "surrol_data.cli"]
-CFG = DDPGConfig(hidden_sizes=(32, 32), bc_weight=5.0, q_filter=True, action_l2=0.5)
+# every optional piece on, so the member-vs-single comparison covers them: Q-filter, action L2, the warm start
+CFG = DDPGConfig(hidden_sizes=(32, 32), bc_weight=5.0, q_filter=True, action_l2=0.5, actor_hold_updates=1,
+                 q_ramp_updates=2, q_normalize=True)
 
 
 @pytest.fixture(autouse=True)
@@ -97,11 +99,31 @@ def test_warm_start_holds_the_actor_then_ramps_the_q_term():
     assert "actor_loss" not in metrics and all(torch.equal(a, b) for a, b in zip(no_demos, held.actor.parameters()))
     metrics = held.update(random_buffer(0), random_buffer(1))  # the BC term alone moves it
     assert "bc_loss" in metrics and not all(torch.equal(a, b) for a, b in zip(no_demos, held.actor.parameters()))
+    # the normalised Q term keeps its weight against the BC term whatever the scale of Q
+    def moved(normalize: bool, q_factor: float) -> torch.Tensor:
+        agent = DDPG(4, 3, 2, DDPGConfig(hidden_sizes=(16,), q_normalize=normalize, action_l2=0.0), seed=3)
+        with torch.no_grad():
+            agent.critic.net[-1].weight.mul_(q_factor)
+            agent.critic.net[-1].bias.fill_(-20.0 * q_factor)
+        before = torch.cat([p.flatten().clone() for p in agent.actor.parameters()])
+        agent._actor_step(agent._tensors(random_buffer(4).sample(64, np.random.default_rng(0))), bc=True)
+        return torch.cat([p.flatten() for p in agent.actor.parameters()]) - before
+    assert torch.allclose(moved(True, 1.0), moved(True, 10.0), atol=1e-6)
+    assert not torch.allclose(moved(False, 1.0), moved(False, 10.0), atol=1e-6)
     # offline critic warm-up: TD steps on demo batches lower the TD error of the pre-trained actor's values
     fresh = DDPG(4, 3, 2, DDPGConfig(hidden_sizes=(32, 32)), seed=1)
     demos = random_buffer(2)
     losses = [fresh.pretrain_critic_step(demos) for _ in range(150)]
     assert np.mean(losses[-20:]) < 0.5 * np.mean(losses[:5])
+
+
+def test_a_batched_sweep_expands_like_hydras_basic_sweeper():
+    from surrol_data.train_app import sweep_jobs
+
+    jobs = sweep_jobs(["seed=0,1", "demos=script,expert", "experiment=paper", "algo.params.hidden_sizes=[64,64]"])
+    assert len(jobs) == 4 and ["seed=1", "demos=expert", "experiment=paper", "algo.params.hidden_sizes=[64,64]"] in jobs
+    with pytest.raises(ValueError, match="share task, algo and experiment"):
+        train_batched([run_config("/tmp/a", "/x", 0), run_config("/tmp/b", "/x", 1, bc_weight=1.0)], progress=False)
 
 
 # --- whole runs ---------------------------------------------------------------------------------

@@ -55,6 +55,8 @@ class DDPGConfig:
     critic_pretrain_steps: int = 0   # after BC: TD steps of the critic on demo batches, bootstrapping through π
     actor_hold_updates: int = 0      # first online updates: the actor learns from the BC term only (no Q term)
     q_ramp_updates: int = 0          # then the Q term's weight rises linearly from 0 to 1 over this many updates
+    q_normalize: bool = False        # divide the Q term by the batch's mean |Q| (TD3+BC): the BC term keeps its
+                                     # weight whatever the scale of the returns (|Q| reaches 1/(1−γ) = 100 here)
 
 
 def q_term_scale(online_updates: int, config: DDPGConfig) -> float:
@@ -172,6 +174,8 @@ class DDPG:
             self.critic.requires_grad_(False)
             objective = self.critic(b["o"], b["g"], pi)
             self.critic.requires_grad_(True)
+            if cfg.q_normalize:
+                objective = objective / objective.detach().abs().mean().clamp_min(1e-3)
             if q_scale != 1.0:
                 objective = q_scale * objective
         else:

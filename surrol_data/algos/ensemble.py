@@ -207,6 +207,8 @@ class EnsembleDDPG:
             self.critic.requires_grad_(False)  # only the action gradient is needed, not the critic's weights'
             objective = self._q(self.critic, b["o"], b["g"], pi)
             self.critic.requires_grad_(True)
+            if cfg.q_normalize:  # per member: each run's own mean |Q|
+                objective = objective / objective.detach().abs().mean(1, keepdim=True).clamp_min(1e-3)
             if q_scale != 1.0:
                 objective = q_scale * objective
         else:
