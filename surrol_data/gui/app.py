@@ -317,7 +317,7 @@ class TrainingApp:
         self.last_task = task
         skill = "expert" if self.device == "operator" and self.skill == "unknown" else self.skill
         self._session_running = True
-        self.status["text"] = f"recording into {out}"
+        self.status["text"] = f"recording into {out.parent.name}/{out.name}"
         self.keys.start()
         tracker = KeyTracker(self.keys)
         if self._preview_env is not None:
