@@ -12,9 +12,24 @@ chosen with ``camera_renderer="panda3d"``. Two offscreen buffers share one stage
 from __future__ import annotations
 
 import numpy as np
-from panda3d.core import (AntialiasAttrib, Camera, ColorAttrib, FrameBufferProperties, GraphicsEngine,
-                          GraphicsOutput, GraphicsPipe, LightAttrib, MaterialAttrib, NodePath, RenderState,
-                          ShaderAttrib, Texture, TextureAttrib, TransparencyAttrib, WindowProperties)
+from panda3d.core import (
+    AntialiasAttrib,
+    Camera,
+    ColorAttrib,
+    FrameBufferProperties,
+    GraphicsEngine,
+    GraphicsOutput,
+    GraphicsPipe,
+    LightAttrib,
+    MaterialAttrib,
+    NodePath,
+    RenderState,
+    ShaderAttrib,
+    Texture,
+    TextureAttrib,
+    TransparencyAttrib,
+    WindowProperties,
+)
 
 from surrol_data.envs.camera import FAR_M, NEAR_M, CameraImage, _checked_size
 from surrol_data.render.display import RendererUnavailable, offscreen_pipe

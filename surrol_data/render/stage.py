@@ -6,14 +6,14 @@ One stage serves any number of cameras (the offscreen observation camera, the GU
 
 from __future__ import annotations
 
+import math
+
 from panda3d.core import AntialiasAttrib, NodePath, PerspectiveLens, Point3, Vec3
 
 from surrol_data.envs.camera import FAR_M, FOV_DEG, NEAR_M, TAN_HALF_FOV, camera_axes
 from surrol_data.render.endoscope_light import MAX_EXPOSURE_DISTANCE_M, SHADOW_MAP_SIZE, EndoscopeLight
 from surrol_data.render.phong_shader import phong_shader
 from surrol_data.render.scene_mirror import SceneMirror
-
-import math
 
 
 def endoscope_lens(width: int, height: int) -> PerspectiveLens:
