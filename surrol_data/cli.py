@@ -96,7 +96,7 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
 
 
 @app.command()
-def gui(out: Path = typer.Option(Path("gui_sessions"), help="Folder for the sessions' datasets (one per task: OUT/<task>)."),
+def gui(out: Path = typer.Option(Path("gui_sessions"), help="Folder for the sessions' datasets: OUT/<task>."),
         task: Optional[str] = typer.Option(None, help="Task chosen when the window opens."),
         device: str = typer.Option("keyboard", help="keyboard, operator, touch, gamepad or spacemouse."),
         operator_id: str = typer.Option("", help="Who operates (recorded in provenance)."),

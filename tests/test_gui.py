@@ -58,8 +58,8 @@ def test_gui_play_save_exit_records_a_valid_dataset(tmp_path):
     row = episodes.iloc[0]
     assert row["source"] == "haptic" and row["device"] == "simulated-operator"
     assert row["skill"] == "expert" and row["operator_id"] == "trainee-7"
-    assert len(reader.trajectory(int(row["episode_index"])).action) == SAVE_AT_STEP - 1 or \
-        len(reader.trajectory(int(row["episode_index"])).action) == SAVE_AT_STEP
+    # Saved as it stood: the steps before the click, no more.
+    assert len(reader.trajectory(int(row["episode_index"])).action) == SAVE_AT_STEP
 
 
 @pytest.mark.slow
@@ -85,3 +85,35 @@ def test_gui_on_an_x_display_through_the_cli(tmp_path):
     from surrol_data.datasets.validate import validate_dataset
 
     assert validate_dataset(tmp_path / "out" / "NeedleReach") == []
+
+
+def test_hud_counts_time_path_and_flags_per_attempt():
+    from surrol_data.envs.units import CONTROL_PERIOD_S
+    from surrol_data.gui.hud import Hud
+
+    hud = Hud(task="NeedlePick")
+    tips = [(0.0, 0.0, 0.0), (0.03, 0.0, 0.0), (0.03, 0.04, 0.0)]
+    for step, tip in enumerate(tips, start=1):
+        hud.update(step, {"tip_position": [tip], "is_success": step == 3}, {"jaw_button": step >= 2, "clutch": False})
+    assert hud.attempt == 1 and hud.steps == 3
+    assert hud.path_m == pytest.approx(0.07)
+    assert hud.time_s == pytest.approx(3 * CONTROL_PERIOD_S)
+    assert hud.success and hud.jaw_closed and not hud.clutch
+    hud.update(1, {"tip_position": [(1.0, 1.0, 1.0)], "is_success": False}, {})   # a new attempt starts afresh
+    assert hud.attempt == 2 and hud.path_m == 0.0 and not hud.success
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--task", "NeedleJuggle"], "unknown task"),
+    (["--device", "joystick"], "--device must be one of"),
+    (["--skill", "wizard"], "--skill must be one of"),
+    (["--autoplay", "1"], "--autoplay needs --task"),
+])
+def test_gui_cli_refuses_bad_options(args, message):
+    from typer.testing import CliRunner
+
+    from surrol_data.cli import app
+
+    result = CliRunner().invoke(app, ["gui", *args])
+    assert result.exit_code == 2
+    assert message in " ".join(result.output.split())

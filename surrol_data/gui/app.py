@@ -18,7 +18,6 @@ import time
 from pathlib import Path
 
 import gymnasium as gym
-import numpy as np
 
 import surrol_data.envs  # noqa: F401  (registers the tasks)
 from surrol_data.collect.devices.keyboard import DISCARD_KEY, QUIT_KEY, REDO_KEY, SAVE_KEY
@@ -53,6 +52,9 @@ class TrainingApp:
         from panda3d.core import loadPrcFileData
 
         self.offscreen = (not has_display()) if offscreen is None else offscreen
+        if not self.offscreen and not has_display():
+            raise display.RendererUnavailable("an on-screen window needs a display (DISPLAY / WAYLAND_DISPLAY is "
+                                              "unset); run with --offscreen, or under Xvfb")
         if self.offscreen:
             display.offscreen_pipe()   # fails early, naming the packages, where EGL is missing
             loadPrcFileData("surrol_data_gui", "load-display p3headlessgl\n")
@@ -317,7 +319,7 @@ class TrainingApp:
         self.last_task = task
         skill = "expert" if self.device == "operator" and self.skill == "unknown" else self.skill
         self._session_running = True
-        self.status["text"] = f"recording into {out}"
+        self.status["text"] = f"recording into {out.parent.name}/{out.name}"
         self.keys.start()
         tracker = KeyTracker(self.keys)
         if self._preview_env is not None:
@@ -326,8 +328,8 @@ class TrainingApp:
         try:
             self.last_result = collect_haptic(
                 task, self.session_episodes, out, device=self.device, operator_id=self.operator_id or "anonymous",
-                skill=skill, seed=self.seed, keep_failures=True, append=(out / "meta" / "info.json").exists(), gui=False,
-                progress=False, command=f"surrol-data gui --out {self.out}", key_tracker=tracker,
+                skill=skill, seed=self.seed, keep_failures=True, append=(out / "meta" / "info.json").exists(),
+                gui=False, progress=False, command=f"surrol-data gui --out {self.out}", key_tracker=tracker,
                 on_step=self._on_step, env_kwargs={"render_mode": "rgb_array"}, max_attempts=SESSION_EPISODES)
             self.status["text"] = f"saved {self.last_result.kept} episode(s)"
         except (ValueError, RuntimeError, FileExistsError) as e:   # DeviceError is a RuntimeError

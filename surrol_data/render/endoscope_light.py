@@ -26,13 +26,13 @@ FIBRE_OFFSET_M = 0.004
 MIN_EXPOSURE_DISTANCE_M, MAX_EXPOSURE_DISTANCE_M = 0.03, 2.0
 AMBIENT = 0.06
 LIGHT_COLOUR = (1.0, 0.97, 0.92)   # white LED / xenon, slightly warm
-SHADOW_MAP_SIZE = 1024
+SHADOW_MAP_SIZE = 1024   # default; cameras pass about twice their image size (the cone is wider than the view)
 
 
 class EndoscopeLight:
     """Spotlight + ambient under ``scene`` (a real-metre scene root); ``shadows`` switches shadow mapping."""
 
-    def __init__(self, scene: NodePath, shadows: bool = True):
+    def __init__(self, scene: NodePath, shadows: bool = True, shadow_map_size: int = SHADOW_MAP_SIZE):
         self.spot = Spotlight("endoscope_light")
         self._expose(WORKING_DISTANCE_M)
         self.spot.set_attenuation((0.0, 0.0, 1.0))
@@ -42,7 +42,7 @@ class EndoscopeLight:
         lens.set_near_far(0.005, 2.0)   # shadow-map depth range: the cavity, in metres
         self.spot.set_lens(lens)
         if shadows:
-            self.spot.set_shadow_caster(True, SHADOW_MAP_SIZE, SHADOW_MAP_SIZE)
+            self.spot.set_shadow_caster(True, shadow_map_size, shadow_map_size)
         self.node = scene.attach_new_node(self.spot)
         scene.set_light(self.node)
         ambient = AmbientLight("cavity_ambient")

@@ -21,7 +21,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-
 # Texture tiles: one tile spans this many real metres of surface.
 TISSUE_TILE_M = 0.02
 SILICONE_TILE_M = 0.01

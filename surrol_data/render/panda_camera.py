@@ -12,9 +12,24 @@ chosen with ``camera_renderer="panda3d"``. Two offscreen buffers share one stage
 from __future__ import annotations
 
 import numpy as np
-from panda3d.core import (AntialiasAttrib, Camera, ColorAttrib, FrameBufferProperties, GraphicsEngine,
-                          GraphicsOutput, GraphicsPipe, LightAttrib, MaterialAttrib, NodePath, RenderState,
-                          ShaderAttrib, Texture, TextureAttrib, TransparencyAttrib, WindowProperties)
+from panda3d.core import (
+    AntialiasAttrib,
+    Camera,
+    ColorAttrib,
+    FrameBufferProperties,
+    GraphicsEngine,
+    GraphicsOutput,
+    GraphicsPipe,
+    LightAttrib,
+    MaterialAttrib,
+    NodePath,
+    RenderState,
+    ShaderAttrib,
+    Texture,
+    TextureAttrib,
+    TransparencyAttrib,
+    WindowProperties,
+)
 
 from surrol_data.envs.camera import FAR_M, NEAR_M, CameraImage, _checked_size
 from surrol_data.render.display import RendererUnavailable, offscreen_pipe
@@ -39,7 +54,9 @@ class PandaEndoscopeCamera:
         self.client = client
         self.width, self.height = width, height
         self.scene_scale = float(scene_scale)
-        self.stage = EndoscopeStage(client, scene_scale, shadows=shadows)
+        # The light's cone is wider than the view: about two shadow-map texels per image pixel across.
+        shadow_map = min(1024, max(256, 1 << (2 * max(width, height) - 1).bit_length()))
+        self.stage = EndoscopeStage(client, scene_scale, shadows=shadows, shadow_map_size=shadow_map)
         pipe = offscreen_pipe()
         self.engine = GraphicsEngine(pipe)
         self._color_tex = Texture("endoscope_rgb")
@@ -48,7 +65,7 @@ class PandaEndoscopeCamera:
         self._id_tex, self._depth_tex = Texture("endoscope_ids"), Texture("endoscope_depth")
         self._depth_tex.set_format(Texture.F_depth_component32)
         self._depth_tex.set_component_type(Texture.T_float)
-        self._ids = self._buffer(pipe, "endoscope_ids", 0, self._id_tex, self._depth_tex)
+        self._ids = self._buffer(pipe, "endoscope_ids", 0, self._id_tex, self._depth_tex, host=self._colour)
         self._ids_cam = self._camera(self._ids, "endoscope_ids")
         self._ids.set_clear_color((0.0, 0.0, 0.0, 1.0))
         cam_node = self._ids_cam.node()
@@ -61,7 +78,7 @@ class PandaEndoscopeCamera:
         self._tagged: set[int] = set()
         self._drawn = False
 
-    def _buffer(self, pipe, name: str, multisamples: int, colour: Texture, depth: Texture | None):
+    def _buffer(self, pipe, name: str, multisamples: int, colour: Texture, depth: Texture | None, host=None):
         fbp = FrameBufferProperties()
         fbp.set_rgb_color(True)
         fbp.set_rgba_bits(8, 8, 8, 8)
@@ -69,11 +86,9 @@ class PandaEndoscopeCamera:
         fbp.set_multisamples(multisamples)
         props = WindowProperties.size(self.width, self.height)
         flags = GraphicsPipe.BF_refuse_window
-        # Both buffers share one OpenGL context (textures and shaders are prepared once).
-        host = getattr(self, "_colour", None)
         if host is None:
             buf = self.engine.make_output(pipe, name, 0, fbp, props, flags)
-        else:
+        else:   # share the host's OpenGL context: textures and shaders are prepared once
             buf = self.engine.make_output(pipe, name, 0, fbp, props, flags, host.get_gsg(), host)
         if buf is None:
             raise RendererUnavailable(f"Panda3D could not open a {self.width}×{self.height} offscreen buffer "

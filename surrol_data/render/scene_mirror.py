@@ -13,10 +13,24 @@ pass turns into a flat id colour.
 from __future__ import annotations
 
 import numpy as np
-from panda3d.core import (LVecBase3f, GeomNode, Geom, GeomTriangles, GeomVertexData, GeomVertexFormat, LQuaternionf, Material,
-                          NodePath, SamplerState, Texture, TextureStage, TransparencyAttrib, TransformState)
-from surrol_data.envs.physics import pb  # physics imports pybullet quietly
+from panda3d.core import (
+    Geom,
+    GeomNode,
+    GeomTriangles,
+    GeomVertexData,
+    GeomVertexFormat,
+    LQuaternionf,
+    LVecBase3f,
+    Material,
+    NodePath,
+    SamplerState,
+    Texture,
+    TextureStage,
+    TransformState,
+    TransparencyAttrib,
+)
 
+from surrol_data.envs.physics import pb  # physics imports pybullet quietly
 from surrol_data.render import materials, shapes
 
 SEGMENTATION_TAG = "pybullet_body"

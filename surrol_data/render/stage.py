@@ -6,14 +6,14 @@ One stage serves any number of cameras (the offscreen observation camera, the GU
 
 from __future__ import annotations
 
+import math
+
 from panda3d.core import AntialiasAttrib, NodePath, PerspectiveLens, Point3, Vec3
 
 from surrol_data.envs.camera import FAR_M, FOV_DEG, NEAR_M, TAN_HALF_FOV, camera_axes
-from surrol_data.render.endoscope_light import MAX_EXPOSURE_DISTANCE_M, EndoscopeLight
+from surrol_data.render.endoscope_light import MAX_EXPOSURE_DISTANCE_M, SHADOW_MAP_SIZE, EndoscopeLight
 from surrol_data.render.phong_shader import phong_shader
 from surrol_data.render.scene_mirror import SceneMirror
-
-import math
 
 
 def endoscope_lens(width: int, height: int) -> PerspectiveLens:
@@ -28,7 +28,8 @@ def endoscope_lens(width: int, height: int) -> PerspectiveLens:
 class EndoscopeStage:
     """The scene graph of one PyBullet scene (``scene_scale``: how much larger than real it is built)."""
 
-    def __init__(self, client, scene_scale: float = 1.0, shadows: bool = True):
+    def __init__(self, client, scene_scale: float = 1.0, shadows: bool = True,
+                 shadow_map_size: int = SHADOW_MAP_SIZE):
         self.root = NodePath("endoscope_stage")
         # Per-pixel Phong lighting, shadow map and texture modulation (see phong_shader for why not the
         # auto shader).
@@ -36,7 +37,7 @@ class EndoscopeStage:
         self.root.set_antialias(AntialiasAttrib.M_multisample)
         self.root.set_shader_input("u_shadows", 1.0 if shadows else 0.0)
         self.mirror = SceneMirror(client, self.root, scene_scale)
-        self.light = EndoscopeLight(self.root, shadows=shadows)
+        self.light = EndoscopeLight(self.root, shadows=shadows, shadow_map_size=shadow_map_size)
         self._pose = None
 
     def update(self, world_T_eef) -> None:
