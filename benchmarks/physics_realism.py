@@ -72,7 +72,6 @@ class Result:
     def merge_overlaps(self, probe: "Probe") -> None:
         for k, v in probe.overlap.items():
             self.overlap[k] = max(self.overlap[k], v)
-        self.max_slip = max(self.max_slip, probe.max_slip)
 
 
 # ---------------------------------------------------------------------- probe
@@ -85,7 +84,7 @@ class Probe:
 
     def __init__(self):
         self.overlap = {k: 0.0 for k in OVERLAP_CLASSES}
-        self.max_slip = 0.0
+        self.step_slip: dict[int, float] = {}   # per arm, the largest slip of its held object during this step
         self.time = 0.0
         self._held: dict[int, tuple] = {}
 
@@ -126,7 +125,8 @@ class Probe:
             first = self._held.setdefault(k, (g.constraint, rel))
             if first[0] != g.constraint:
                 self._held[k] = first = (g.constraint, rel)
-            self.max_slip = max(self.max_slip, float(np.linalg.norm(rel - first[1])) / SCALING)
+            slip = float(np.linalg.norm(rel - first[1])) / SCALING
+            self.step_slip[k] = max(self.step_slip.get(k, 0.0), slip)
         self.time += time.perf_counter() - t
 
     def deepest(self, a: int, b: int) -> float:
@@ -136,7 +136,7 @@ class Probe:
 
 def has_collision_shape(c, body: int) -> bool:
     try:
-        with physics._stdout_silenced(fds=(2,)):   # PyBullet warns on stderr before it raises
+        with physics._stdout_silenced(fds=(1, 2)):   # PyBullet prints a warning before it raises
             return bool(c.getCollisionShapeData(body, -1))
     except Exception:   # PyBullet raises for bodies without any shape (e.g. the endoscope's)
         return False
@@ -203,18 +203,21 @@ def check_end(task: str, probe: Probe, res: Result) -> None:
 # ---------------------------------------------------------------------- runs
 def timed_step(env, action, res: Result, probe: Probe, jaw_closing: list[bool]):
     before = [g.attached for g in grasps_of(env.unwrapped)]
+    probe.step_slip = {}
     t0, p0 = time.perf_counter(), probe.time
     obs, _, terminated, truncated, info = env.step(action)
     res.step_time += (time.perf_counter() - t0) - (probe.time - p0)
     res.steps += 1
     u = env.unwrapped
-    for g, was, closing in zip(grasps_of(u), before, jaw_closing):
+    for k, (g, was, closing) in enumerate(zip(grasps_of(u), before, jaw_closing)):
         if g.attached and not was:
             res.grasps += 1
             if not between_blades(u.client, g.psm.body, g.object_id):
                 res.grasps_not_between += 1
         if was and not g.attached and closing:
             res.drops += 1
+        elif g.attached:   # slip of objects still held; a dropped object's last slip is what dropped it
+            res.max_slip = max(res.max_slip, probe.step_slip.get(k, 0.0))
     return obs, info, terminated or truncated
 
 

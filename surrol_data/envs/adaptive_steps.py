@@ -3,10 +3,12 @@
 PyBullet resolves a contact only after bodies already overlap, so a body moving ``v`` per second sinks up to
 ``v × dt`` into whatever it meets within one physics step of ``dt``. Tool tips (up to ~14 cm/s at full action)
 and dropped objects (~0.5 m/s after 60 mm) sink millimetres at the coarse step, which is fine everywhere else.
-Before each coarse step the planner estimates how far the fastest tool near another body, and the fastest
-object, could travel; the coarse step is split into as many fine steps as keep that travel under
-``physics.MAX_TRAVEL_PER_STEP_M`` (at most ``physics.MAX_REFINEMENT``). The test costs a few PyBullet queries
-(~10 µs) per coarse step; the fine steps cost only where they are needed.
+Once per control period the planner bounds how fast the tools' blades may move (their ramped joint targets
+are known) and, if one could come near another body meanwhile, how finely to step; before each coarse step
+it checks the objects' speeds (a dropped object speeds up within the period). A coarse step is split into as
+many fine steps as keep that travel under ``physics.MAX_TRAVEL_PER_STEP_M`` (tools) or
+``physics.MAX_OBJECT_TRAVEL_PER_STEP_M`` (objects), at most ``physics.MAX_REFINEMENT``. The tests cost a few
+PyBullet queries per step; the fine steps cost only where they are needed.
 """
 
 from __future__ import annotations
@@ -14,8 +16,10 @@ from __future__ import annotations
 import math
 
 from surrol_data.envs import physics
+from surrol_data.envs.physics import pb
 from surrol_data.envs.units import SCALING
 
+_GRAVITY = abs(physics.GRAVITY[2])
 # Tool links whose sweep matters (wrist pitch link, both jaws).
 _TOOL_LINKS = (4, 6, 7)
 
@@ -27,49 +31,62 @@ class SubstepPlanner:
         self.client = client
         self.grasps = grasps
         self.dynamic_bodies = dynamic_bodies
+        self._cid = client._client
+        self._tool_k = 1
         self.refined_steps = 0     # coarse steps that were split (for benchmarks)
+
+    def plan_tools(self, dt: float) -> None:
+        """Once per control period, before its physics steps: the refinement the tools' moves need. Their speed
+        during the period is set by the ramped joint targets (known now), so one test per period suffices."""
+        self._tool_k = self._k(self._tool_travel(dt), physics.MAX_TRAVEL_PER_STEP_M)
 
     def refinement(self, dt: float) -> int:
         """How many fine steps the next coarse step of ``dt`` seconds needs (1 = none)."""
-        travel = max(self._object_travel(dt), self._tool_travel(dt))
-        k = min(physics.MAX_REFINEMENT, math.ceil(travel / physics.MAX_TRAVEL_PER_STEP_M - 1e-9))
+        k = max(self._tool_k, self._k(self._object_travel(dt), physics.MAX_OBJECT_TRAVEL_PER_STEP_M))
         if k > 1:
             self.refined_steps += 1
-        return max(k, 1)
+        return k
+
+    @staticmethod
+    def _k(travel: float, limit: float) -> int:
+        return max(1, min(physics.MAX_REFINEMENT, math.ceil(travel / limit - 1e-9)))
 
     def _object_travel(self, dt: float) -> float:
         """Travel of the fastest object that could hit something other than a tool (tool hits are the tools')."""
-        c = self.client
         worst = 0.0
-        tools = {g.psm.body for g in self.grasps}
+        tools = None
         for body in self.dynamic_bodies():
-            v = c.getBaseVelocity(body)[0]
-            travel = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) / SCALING * dt
-            if travel <= max(worst, physics.MAX_TRAVEL_PER_STEP_M):
+            v = pb.getBaseVelocity(body, physicsClientId=self._cid)[0]
+            if v == (0.0, 0.0, 0.0):   # asleep, or at rest
                 continue
+            speed = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+            if v[2] < -_GRAVITY * dt:   # falling: it speeds up within the step by what gravity gives meanwhile
+                speed += _GRAVITY * dt
+            travel = speed / SCALING * dt
+            if travel <= max(worst, physics.MAX_OBJECT_TRAVEL_PER_STEP_M):
+                continue
+            tools = tools or {g.psm.body for g in self.grasps}
             if self._near_other_body(body, (-1,), travel * SCALING, ignore=tools):
                 worst = travel
         return worst
 
     def _tool_travel(self, dt: float) -> float:
-        c = self.client
         worst = 0.0
         for grasp in self.grasps:
             psm = grasp.psm
-            # A motor held back (the tool pressed on an object that may give way) can reach its speed limit
-            # within the step: the bound takes the faster of the current speed and that.
             travel = psm.blade_speed_bound(dt) * dt
             if travel <= max(worst, physics.MAX_TRAVEL_PER_STEP_M):
                 continue
-            # A held object moves with the tool (the object test watches what it may hit).
+            # A held object moves with the tool (the object test watches what it may hit). The reach covers the
+            # whole control period's move.
             held = (grasp.object_id,) if grasp.attached else ()
-            if not self._near_other_body(psm.body, _TOOL_LINKS, travel * SCALING, ignore=held):
-                continue
-            worst = max(worst, travel)
+            if self._near_other_body(psm.body, _TOOL_LINKS, travel * SCALING * physics.SUBSTEPS, ignore=held):
+                worst = travel
         return worst
 
     def _near_other_body(self, body: int, links, reach: float, ignore=()) -> bool:
-        """Does the bounding box of ``body``'s ``links``, grown by ``reach``, overlap any other body's?"""
+        """Is another body within ``reach`` (scaled) of ``body``'s ``links``? Bounding boxes first (PyBullet's
+        include a collision margin of ~8 mm real, so they overlap near every floor), then exact distances."""
         c = self.client
         lo, hi = [math.inf] * 3, [-math.inf] * 3
         for link in links:
@@ -78,4 +95,11 @@ class SubstepPlanner:
             hi = [max(x, y) for x, y in zip(hi, b)]
         lo = [x - reach for x in lo]
         hi = [x + reach for x in hi]
-        return any(other != body and other not in ignore for other, _ in (c.getOverlappingObjects(lo, hi) or ()))
+        candidates = {other for other, _ in (c.getOverlappingObjects(lo, hi) or ())}
+        candidates.discard(body)
+        candidates.difference_update(ignore)
+        for other in sorted(candidates):
+            for link in links:
+                if c.getClosestPoints(body, other, reach, linkIndexA=link):
+                    return True
+        return False

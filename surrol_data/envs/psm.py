@@ -30,6 +30,10 @@ _WRIST_COLOUR = (0.3, 0.3, 0.35, 1.0)
 _JAW_COLOUR = (0.2, 0.2, 0.22, 1.0)
 
 _MOVING_JOINTS = ARM_JOINTS + JAW_JOINTS
+# Joints whose targets ramp step by step (they carry the tip); the wrist's get their targets at once (their
+# blade-end speeds are small, and a 30° turn needs the whole period at the wrist's speed limit).
+_RAMPED_JOINTS = (0, 1, 2)
+_WRIST_JOINTS = (3, 4, 5)
 # Levers (real metres per scaled unit of joint motion) from joints 2–7 to the blade ends: insertion (scaled),
 # tool roll (blades within ~2 mm of the shaft axis), wrist pitch (wrist + blade), wrist yaw and the jaws (blade).
 _BLADE_LEVERS = (1.0 / SCALING, 0.002, kin.WRIST_LENGTH + kin.TIP_LENGTH, kin.TIP_LENGTH, kin.TIP_LENGTH,
@@ -75,7 +79,7 @@ class Psm:
         self.body = self._build()
         self._vmax = physics.scaled_velocity_limits()
         self._speed_caps = tuple(self._vmax) + (physics.JAW_MAX_VELOCITY,) * 2
-        self._motor_targets = (0.0,) * 8   # joints 0–7 as the motors have them (insertion scaled)
+        self._goal_targets = (0.0,) * 8   # joints 0–7 where the motors are headed (insertion scaled)
         self._q_target = np.zeros(6)     # where the arm is going (the last accepted command)
         self._q_from = np.zeros(6)       # where the ramp towards it started
         self._q_motor = np.zeros(6)      # what the motors are set to now
@@ -178,6 +182,7 @@ class Psm:
         for j, sign in zip(JAW_JOINTS, _JAW_SIGNS):
             c.resetJointState(self.body, j, sign * jaw / 2, 0.0)
         self._q_target = q.copy()
+        self._set_goal_targets()
         self._q_from = q.copy()
         self._ramp_done = True
         self._jaw_target = jaw
@@ -197,18 +202,19 @@ class Psm:
         return v
 
     def blade_speed_bound(self, dt: float) -> float:
-        """A bound (real m/s) on how fast any point of the blades may move during the next ``dt``: per joint the
-        faster of its current speed and the speed its motor may reach towards its target within ``dt`` (capped
-        by the joint's limit), times that joint's lever to the blade ends. (Plain floats: called every physics
-        step, where numpy's per-call overhead on 8-element arrays would cost more than the arithmetic.)"""
+        """A bound (real m/s) on how fast any point of the blades moves over the next control period of physics
+        steps of ``dt``: per joint the faster of its current speed and the speed that covers the rest of its
+        move within the target ramp (capped by the joint's limit), times that joint's lever to the blade ends.
+        (Plain floats: numpy's per-call overhead on 8-element arrays would cost more than the arithmetic.)"""
         states = pb.getJointStates(self.body, _MOVING_JOINTS, physicsClientId=self._cid)
-        targets = self._motor_targets
+        targets = self._goal_targets
         caps = self._speed_caps
+        ramp = physics.RAMP_STEPS * dt
         reach = states[2][0] / SCALING + kin.WRIST_LENGTH + kin.TIP_LENGTH   # RCM to blade ends, real metres
         levers = (reach, reach) + _BLADE_LEVERS
         bound = 0.0
         for state, target, cap, lever in zip(states, targets, caps, levers):
-            bound += max(abs(state[1]), min(cap, abs(target - state[0]) / dt)) * lever
+            bound += max(abs(state[1]), min(cap, abs(target - state[0]) / ramp)) * lever
         return bound
 
     def jaw_angle(self) -> float:
@@ -242,13 +248,20 @@ class Psm:
             if kin.PSM_LOWER[3] <= cand <= kin.PSM_UPPER[3] and abs(cand - self._q_target[3]) < abs(q[3] - self._q_target[3]):
                 q[3] = cand
         self._q_target = q
+        self._set_goal_targets()
         if ramp:
             self._q_from = self._q_motor.copy()
             self._ramp_done = False
+            self._apply_arm_targets(q, _WRIST_JOINTS)
         else:
             self._ramp_done = True
             self._apply_arm_targets(q)
         return True
+
+    def _set_goal_targets(self) -> None:
+        goal = self._q_target.tolist()
+        goal[2] *= SCALING
+        self._goal_targets = tuple(goal) + self._goal_targets[6:]
 
     def ramp_targets(self, step: int) -> None:
         """Before physics step ``step`` (0-based) of a control period: advance the motor targets along the ramp."""
@@ -259,7 +272,7 @@ class Psm:
             self._ramp_done = True
             self._apply_arm_targets(self._q_target)
         else:
-            self._apply_arm_targets(self._q_from + (self._q_target - self._q_from) * f)
+            self._apply_arm_targets(self._q_from + (self._q_target - self._q_from) * f, _RAMPED_JOINTS)
 
     def command_jaw(self, angle: float) -> None:
         angle = float(np.clip(angle, *kin.JAW_LIMITS))
@@ -273,12 +286,13 @@ class Psm:
             self._jaw_target = angle
             self._apply_jaw_target()
 
-    def _apply_arm_targets(self, q: np.ndarray) -> None:
-        self._q_motor = np.array(q, dtype=np.float64)
+    def _apply_arm_targets(self, q: np.ndarray, joints=ARM_JOINTS) -> None:
+        """Set the motors of ``joints`` (default all six) to ``q``'s values."""
+        self._q_motor[list(joints)] = np.asarray(q, dtype=np.float64)[list(joints)]
         targets = self._q_motor.tolist()
         targets[2] *= SCALING
-        self._motor_targets = tuple(targets) + self._motor_targets[6:]
-        for k, j in enumerate(ARM_JOINTS):
+        for k in joints:
+            j = ARM_JOINTS[k]
             pb.setJointMotorControl2(self.body, j, pb.POSITION_CONTROL, targetPosition=targets[k],
                                      targetVelocity=0.0, positionGain=physics.PSM_POSITION_GAIN,
                                      velocityGain=physics.PSM_VELOCITY_GAIN, force=physics.PSM_MAX_FORCE[k],
@@ -286,7 +300,7 @@ class Psm:
 
     def _apply_jaw_target(self) -> None:
         c = self.client
-        self._motor_targets = self._motor_targets[:6] + tuple(sign * self._jaw_target / 2 for sign in _JAW_SIGNS)
+        self._goal_targets = self._goal_targets[:6] + tuple(sign * self._jaw_target / 2 for sign in _JAW_SIGNS)
         for j, sign in zip(JAW_JOINTS, _JAW_SIGNS):
             c.setJointMotorControl2(self.body, j, pb.POSITION_CONTROL, targetPosition=sign * self._jaw_target / 2,
                                     targetVelocity=0.0,

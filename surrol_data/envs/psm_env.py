@@ -220,6 +220,7 @@ class PsmEnv(gym.Env):
         hook = self.substep_hook
         watched = [g for g in closing if not g.attached]
         c = self.client
+        self._substeps.plan_tools(physics.TIME_STEP)
         for i in range(steps):
             for grasp in self._substeps.grasps:
                 grasp.psm.ramp_targets(i)

@@ -1,0 +1,197 @@
+"""Physical realism under rough input: grasps need the object between the blades, no tunnelling, the jaws stop
+on what they hold, a yanked object drops, and actions are tracked. The 30-episode campaigns are in
+``benchmarks/physics_realism.py``; the slow tests here run a share of them."""
+
+import sys
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import surrol_data.envs  # noqa: F401  (registers the ids)
+from surrol_data.envs import objects, physics
+from surrol_data.envs.units import SCALING
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+import physics_realism  # noqa: E402
+
+
+def _drive_to(env, target, jaw: float, steps: int = 25, gain: float = 0.6):
+    """Proportional actions towards ``target`` (tip position, metres) with the given jaw command."""
+    obs = None
+    for _ in range(steps):
+        tip = env.unwrapped.tip_pose()[:3, 3]
+        err = (np.asarray(target) - tip) / 0.01
+        if np.linalg.norm(err) < 0.03:
+            break
+        obs, *_ = env.step(np.array([*np.clip(err, -gain, gain), 0.0, jaw], np.float32))
+    return obs
+
+
+class DeepestOverlap:
+    """A substep hook recording the deepest overlap (real metres) between two groups of bodies."""
+
+    def __init__(self, group_a, group_b):
+        self.pairs = [(a, b) for a in group_a for b in group_b if a != b]
+        self.deepest = 0.0
+
+    def __call__(self, env):
+        for a, b in self.pairs:
+            for p in env.client.getClosestPoints(a, b, 0.0):
+                self.deepest = max(self.deepest, -p[8] / SCALING)
+
+
+@pytest.fixture
+def needle_pick():
+    e = gym.make("SurRoL/NeedlePick-v0")
+    yield e
+    e.close()
+
+
+def test_closed_jaw_poked_onto_the_needle_does_not_grasp_it(needle_pick):
+    e, u = needle_pick, needle_pick.unwrapped
+    e.reset(seed=3)
+    wp = u.needle_waypoint(1)
+    _drive_to(e, wp + [0.0, 0.0, 0.01], jaw=-1.0)
+    for _ in range(4):
+        *_, info = e.step(np.array([0.0, 0.0, -1.0, 0.0, -1.0], np.float32))
+        assert not info["grasped"]
+    for _ in range(3):
+        *_, info = e.step(np.array([0.0, 0.0, 1.0, 0.0, -1.0], np.float32))
+        assert not info["grasped"]
+    assert u.needle_waypoint(1)[2] < objects.PAD_TOP_Z + 0.003   # the needle stayed down
+
+
+@pytest.mark.parametrize("across_blades", [True, False])
+def test_closed_jaw_swiped_into_the_needle_does_not_grasp_it(needle_pick, across_blades):
+    e, u = needle_pick, needle_pick.unwrapped
+    obs, _ = e.reset(seed=4)
+    wp = u.needle_waypoint(1)
+    _, rot = objects.needle_pose(u.client, u.object_id)
+    # Jaw opening direction along the needle's x axis (as for a grasp); swipe along it or along the blades' width.
+    yaw = float(np.arctan2(rot[1, 0], rot[0, 0]))
+    opening = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+    direction = opening if across_blades else np.array([-opening[1], opening[0], 0.0])
+    start = wp + 0.006 * direction
+    _drive_to(e, start + [0.0, 0.0, 0.012], jaw=-1.0)
+    _drive_to(e, start - [0.0, 0.0, 0.001], jaw=-1.0, gain=0.3)
+    for _ in range(3):
+        *_, info = e.step(np.array([*(-direction[:2]), 0.0, 0.0, -1.0], np.float32))
+        assert not info["grasped"]
+
+
+def test_oracle_grasp_holds_the_needle_between_the_blades_and_the_jaw_reads_its_width(needle_pick):
+    e, u = needle_pick, needle_pick.unwrapped
+    obs, info = e.reset(seed=5)
+    overlap = DeepestOverlap([u.psm.body], [u.object_id])
+    u.substep_hook = overlap
+    for _ in range(50):
+        obs, _, _, _, info = e.step(u.oracle_action(obs))
+        if info["grasped"]:
+            break
+    assert info["grasped"]
+    assert physics_realism.between_blades(u.client, u.psm.body, u.object_id)
+    for _ in range(3):
+        obs, _, _, _, info = e.step(u.oracle_action(obs))
+    u.substep_hook = None
+    # The blades stopped on the 1.24 mm wire: the jaw stays open by about the wire's angle at the blade end.
+    wire_angle = 2 * np.arcsin(objects.NEEDLE_WIRE_RADIUS / physics.BLADE_LENGTH_M)
+    assert info["jaw_angle"][0] > 0.5 * wire_angle
+    assert overlap.deepest < 1e-3
+
+
+def test_gauze_held_by_the_oracle_keeps_the_jaw_open_by_its_width():
+    e = gym.make("SurRoL/GauzeRetrieve-v0")
+    u = e.unwrapped
+    obs, info = e.reset(seed=0)
+    for _ in range(50):
+        obs, _, _, _, info = e.step(u.oracle_action(obs))
+        if u.grasp.welded:
+            break
+    assert u.grasp.welded
+    # The 4 mm gauze between 10.2 mm blades: about 2·asin(2/10.2) ≈ 23° (less where it sits deeper).
+    assert np.deg2rad(12.0) < info["jaw_angle"][0] < np.deg2rad(35.0)
+    e.close()
+
+
+def test_yanking_a_held_needle_past_the_weld_force_drops_it_and_counts_the_drop(needle_pick):
+    e, u = needle_pick, needle_pick.unwrapped
+    obs, info = e.reset(seed=6)
+    for _ in range(50):
+        obs, _, _, _, info = e.step(u.oracle_action(obs))
+        if u.grasp.welded:
+            break
+    assert u.grasp.welded and info["drops"] == 0
+    # Something holds the needle where it is (a clamp fixed to the world) while the tool pulls up at full speed.
+    c = u.client
+    pos, quat = c.getBasePositionAndOrientation(u.object_id)
+    c.createConstraint(u.object_id, -1, -1, -1, c.JOINT_FIXED, [0, 0, 0], [0, 0, 0], pos, childFrameOrientation=quat)
+    for _ in range(5):
+        obs, _, _, _, info = e.step(np.array([0.0, 0.0, 1.0, 0.0, -1.0], np.float32))
+        if not info["grasped"]:
+            break
+    assert not info["grasped"]
+    assert info["drops"] == 1
+
+
+def test_a_needle_dropped_from_60_mm_lands_on_the_pad(needle_pick):
+    e, u = needle_pick, needle_pick.unwrapped
+    e.reset(seed=7)
+    c = u.client
+    pos = np.asarray(c.getBasePositionAndOrientation(u.object_id)[0]) / SCALING
+    pos[2] = objects.PAD_TOP_Z + 0.003 + 0.06
+    c.resetBasePositionAndOrientation(u.object_id, (pos * SCALING).tolist(), c.getQuaternionFromEuler([0.4, 0.3, 1.0]))
+    c.changeDynamics(u.object_id, -1, activationState=c.ACTIVATION_STATE_WAKE_UP)
+    statics = [b for b in range(c.getNumBodies()) if b not in (u.psm.body, u.object_id, u.goal_marker)]
+    overlap = DeepestOverlap([u.object_id], statics)
+    u.substep_hook = overlap
+    for _ in range(12):
+        e.step(np.array([0.0, 0.0, 0.0, 0.0, 1.0], np.float32))
+    u.substep_hook = None
+    rest = np.asarray(c.getBasePositionAndOrientation(u.object_id)[0]) / SCALING
+    assert rest[2] > objects.PAD_TOP_Z                     # above the pad, not in or under it
+    assert overlap.deepest < 1e-3
+
+
+@pytest.mark.parametrize("action", [(1.0, -1.0, 1.0), (-1.0, 0.0, -1.0), (0.3, 0.7, -0.5)])
+def test_actions_are_tracked_within_10_percent_in_free_space(needle_pick, action):
+    e, u = needle_pick, needle_pick.unwrapped
+    e.reset(seed=0)
+    _drive_to(e, [0.55, 0.0, 0.725], jaw=1.0, gain=1.0)
+    want = np.asarray(action) * 0.01
+    for _ in range(2):
+        before = u.tip_pose()[:3, 3].copy()
+        e.step(np.array([*action, 0.0, 1.0], np.float32))
+        moved = u.tip_pose()[:3, 3] - before
+        assert np.linalg.norm(moved - want) <= 0.1 * np.linalg.norm(want)
+
+
+# ---------------------------------------------------------------------- campaigns (the benchmark's, shorter)
+@pytest.mark.slow
+@pytest.mark.parametrize("task", physics_realism.TASKS)
+def test_bang_bang_never_leaves_an_object_inside_a_static_body(task):
+    r = physics_realism.run_policy(task, "bang-bang", episodes=10)
+    assert r.left_inside == 0 and r.below_support == 0 and r.out_of_workspace == 0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("task", physics_realism.GRASPING_TASKS)
+@pytest.mark.parametrize("kind", ["poke", "swipe"])
+def test_pokes_and_swipes_with_a_closed_jaw_never_grasp(task, kind):
+    r = physics_realism.run_poke_swipe(task, kind, episodes=10)
+    assert r.grasps == 0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("task", physics_realism.DROP_TASKS)
+def test_drops_from_0_to_60_mm_land_on_their_support(task):
+    r = physics_realism.run_drops(task, episodes=14)
+    assert r.below_support == 0 and r.left_inside == 0
+    assert r.overlap["object-static"] <= 1e-3
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("task", physics_realism.TASKS)
+def test_unit_box_actions_are_tracked_within_10_percent(task):
+    assert physics_realism.run_tracking(task, episodes=30).tracking_error <= 0.10
