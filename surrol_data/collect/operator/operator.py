@@ -50,6 +50,10 @@ _TIP, _YAW, _JAW, _OBJECT_POINT, _OBJECT_YAW = slice(0, 3), 5, 6, slice(13, 16),
 _LIFT_TO_NOTICE_MM = 2.0     # a person sees the object stay behind once the tool has risen this much
 _CLUTCH_SPEED_MM_S = 250.0   # re-centring the hand moves nothing on screen: it goes at ordinary reaching speed
 _CLUTCH_TARGET_MM = 20.0     # and needs no precision (the Fitts width of a re-centring move)
+# A person grasping an object that lies on a surface takes the open jaws down onto the surface before closing
+# (the jaws only hold what lies between the blades, so closing a little high grasps nothing): the grasp
+# approach and the grasp aim this far below the plan's grasp point, and the surface stops the tool.
+_GRASP_PRESS_MM = 1.0
 
 
 @dataclass
@@ -209,6 +213,10 @@ class SimulatedOperator(Device):
         for i, wp in enumerate(plan):
             target = wp["target"]
             fixed = not callable(target)
+            closes_here = float(wp["jaw"]) < 0 and (i == 0 or float(plan[i - 1]["jaw"]) >= 0)
+            approaches = i + 1 < len(plan) and float(wp["jaw"]) >= 0 and float(plan[i + 1]["jaw"]) < 0
+            if fixed and has_object and not self.env.BLOCK_JAW and (closes_here or approaches):
+                target = np.asarray(target, np.float64) - [0.0, 0.0, _GRASP_PRESS_MM / 1000.0]
             goals.append(_Subgoal(
                 target=np.asarray(target, np.float64).copy() if fixed else target,
                 yaw=None if self.env.FIXED_YAW or "yaw" not in wp else float(wp["yaw"]),
