@@ -108,6 +108,12 @@ def gui(out: Path = typer.Option(Path("gui_sessions"), help="Folder for the sess
         offscreen: Optional[bool] = typer.Option(None, "--offscreen/--onscreen", help="Draw into an offscreen "
                                                  "buffer (default: when there is no display).")):
     """The training GUI: pick a task, press play, operate with any device; every attempt is recorded with provenance."""
+    from surrol_data.extras import MissingExtra, require
+
+    try:
+        require("panda3d")
+    except MissingExtra as e:
+        _fail(f"the GUI: {e}")
     from surrol_data.collect.haptic_source import SKILLS
     from surrol_data.envs import TASKS
     from surrol_data.gui.app import DEVICES
@@ -499,7 +505,7 @@ def export(dataset: Path = typer.Argument(..., help="Dataset folder."),
             ds = export_minari(dataset, out, dataset_id=dataset_id, where=where)
             console.print(f"wrote Minari dataset {ds.spec.dataset_id!r} ({ds.total_episodes} episodes) under {out}; "
                           f"load it with MINARI_DATASETS_PATH={out} and minari.load_dataset({ds.spec.dataset_id!r})")
-    except (DatasetError, ValueError, FileExistsError) as e:
+    except (DatasetError, ValueError, FileExistsError, ImportError) as e:
         _fail(str(e))
 
 

@@ -103,12 +103,13 @@ def _report_job(status: str, detail: str, run_dir: str) -> None:
 
 def _run(cfg: DictConfig) -> float:
     from surrol_data.datasets.reader import DatasetError
+    from surrol_data.extras import MissingExtra
 
     sweep = _in_sweep()
     run_dir = str(cfg.get("run_dir", ""))
     try:
         rows = train(to_train_config(cfg))
-    except (FileNotFoundError, FileExistsError, ValueError, DatasetError) as e:
+    except (FileNotFoundError, FileExistsError, ValueError, DatasetError, MissingExtra) as e:
         # bad input: say what and how to fix, no traceback; in a sweep the other jobs still run
         print(f"error: {e}", file=sys.stderr)
         if sweep:

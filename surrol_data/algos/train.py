@@ -133,6 +133,9 @@ class RunLog:
         self._rewrite()  # after a resume: drop any row written after the checkpoint that was restored
         self.writer = None
         if tensorboard:
+            from surrol_data.extras import require
+
+            require("tensorboard")   # torch's SummaryWriter needs it; a clear message names the extra
             from torch.utils.tensorboard import SummaryWriter
 
             self.writer = SummaryWriter(str(run_dir / "tb"), purge_step=(rows[-1]["epoch"] + 1) if rows else None)

@@ -62,7 +62,10 @@ def export_minari(src: str | Path, out: str | Path, *, dataset_id: str | None = 
     Returns the :class:`minari.MinariDataset`. ``out`` becomes the datasets root (see the module docstring).
     """
     import gymnasium as gym
-    import minari
+
+    from surrol_data.extras import require
+
+    minari = require("minari")
     from minari.data_collector import EpisodeBuffer
 
     from surrol_data.datasets.guard import require_valid

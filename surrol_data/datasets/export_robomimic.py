@@ -44,7 +44,9 @@ def mask_name(prefix: str, value: str) -> str:
 def export_robomimic(src: str | Path, out: str | Path, *, where: str | None = None, valid_fraction: float = 0.1,
                      seed: int = 0, overwrite: bool = False, progress: bool = True) -> Path:
     """Write the episodes of ``src`` (those matching ``where``, default all) to the robomimic file ``out``."""
-    import h5py
+    from surrol_data.extras import require
+
+    h5py = require("h5py")
 
     out = Path(out)
     if out.exists() and not overwrite:

@@ -132,6 +132,9 @@ def make_camera(client, size: tuple[int, int] = (128, 128), scene_scale: float =
     if renderer == "tiny":
         return EndoscopeCamera(client, size, scene_scale=scene_scale)
     if renderer == "panda3d":
+        from surrol_data.extras import require
+
+        require("panda3d")
         from surrol_data.render.panda_camera import PandaEndoscopeCamera
 
         return PandaEndoscopeCamera(client, size, scene_scale=scene_scale)

@@ -47,8 +47,12 @@ class GamepadDevice(Device):
         # The dummy video driver lets pygame's event queue run without a window (headless sessions).
         os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
         os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
-        import pygame
+        from surrol_data.extras import MissingExtra, require
 
+        try:
+            pygame = require("pygame")
+        except MissingExtra as e:
+            raise DeviceError(f"the gamepad device: {e}") from None
         self._pygame = pygame
         pygame.display.init()   # the event queue (device added/removed) lives in the video subsystem
         pygame.joystick.init()

@@ -67,10 +67,12 @@ class SpaceMouseDevice(Device):
     def connect(self) -> None:
         if self._dev is not None and self._injected:
             return
+        from surrol_data.extras import MissingExtra, require
+
         try:
-            import hid
-        except ImportError as e:
-            raise DeviceError(f"the spacemouse device needs the hidapi package (`hid` module): {e}") from None
+            hid = require("hid")
+        except MissingExtra as e:
+            raise DeviceError(f"the spacemouse device: {e}") from None
         path = self.path
         if path is None:
             found = [d for vid in VENDOR_IDS for d in hid.enumerate(vid, 0)
