@@ -121,15 +121,15 @@ def test_ddpg_bc_term_is_per_dimension_mse_gated_by_the_target_q_filter():
     b = _batch()
     with torch.no_grad():
         pi = agent.actor(b["o"], b["g"])
-    out = agent._actor_step(b, bc=True)
+    out = agent._actor_step([(b, True)])
     assert out["q_filter_pass"] == 1.0 and out["bc_loss"] == pytest.approx(((pi - b["a"]) ** 2).mean().item(), rel=1e-5)
     assert out["actor_loss"] == pytest.approx(5.0 * out["bc_loss"], rel=1e-5)
     # Q-filter on: the BC term applies only where the target critic rates the demo action at least as high
     agent.config.q_filter = True
     agent.critic_target = lambda o, g, a: -(a - pi).pow(2).sum(-1)  # prefers the actor's own action
-    assert agent._actor_step(b, bc=True)["q_filter_pass"] == 0.0
+    assert agent._actor_step([(b, True)])["q_filter_pass"] == 0.0
     agent.critic_target = lambda o, g, a: -(a - b["a"]).pow(2).sum(-1)  # prefers the demo's action
-    assert agent._actor_step(b, bc=True)["q_filter_pass"] == 1.0
+    assert agent._actor_step([(b, True)])["q_filter_pass"] == 1.0
 
 
 def test_ddpg_update_uses_demo_batches_only_with_a_bc_weight():

@@ -25,7 +25,7 @@ REPO = Path(__file__).resolve().parents[1]
 CLI = [sys.executable, "-m", "surrol_data.cli"]
 # every optional piece on, so the member-vs-single comparison covers them: Q-filter, action L2, the warm start
 CFG = DDPGConfig(hidden_sizes=(32, 32), bc_weight=5.0, q_filter=True, action_l2=0.5, actor_hold_updates=1,
-                 q_ramp_updates=2, q_normalize=True)
+                 q_ramp_updates=2, q_normalize=True, joint_actor_step=True)
 
 
 @pytest.fixture(autouse=True)
@@ -106,7 +106,7 @@ def test_warm_start_holds_the_actor_then_ramps_the_q_term():
             agent.critic.net[-1].weight.mul_(q_factor)
             agent.critic.net[-1].bias.fill_(-20.0 * q_factor)
         before = torch.cat([p.flatten().clone() for p in agent.actor.parameters()])
-        agent._actor_step(agent._tensors(random_buffer(4).sample(64, np.random.default_rng(0))), bc=True)
+        agent._actor_step([(agent._tensors(random_buffer(4).sample(64, np.random.default_rng(0))), True)])
         return torch.cat([p.flatten() for p in agent.actor.parameters()]) - before
     assert torch.allclose(moved(True, 1.0), moved(True, 10.0), atol=1e-6)
     assert not torch.allclose(moved(False, 1.0), moved(False, 10.0), atol=1e-6)

@@ -155,18 +155,27 @@ def test_train_refuses_an_existing_run_dir(tmp_path):
 
 
 def test_repair_cli_and_automatic_repair_message(base, tmp_path):
+    from typer.testing import CliRunner
+
+    from surrol_data.cli import app
+
     root = tmp_path / "cli"
     shutil.copytree(base, root)
     meta = sorted((root / "meta" / "episodes").rglob("*.parquet"))[-1]
     meta.write_bytes(meta.read_bytes()[:50])  # as if killed before the footer
-    cli = [sys.executable, "-m", "surrol_data.cli"]
-    run = subprocess.run([*cli, "info", str(root)], cwd=REPO_ROOT, capture_output=True, text=True, timeout=300)
-    assert run.returncode == 0, run.stderr[-2000:]
-    assert "repairing it" in run.stderr and "dropped episode 2" in run.stderr
-    assert "Traceback" not in run.stderr and "TypeError" not in run.stderr
-    again = subprocess.run([*cli, "repair", str(root)], cwd=REPO_ROOT, capture_output=True, text=True, timeout=300)
-    assert again.returncode == 0 and "nothing to repair" in again.stdout
+    runner = CliRunner()
+    run = runner.invoke(app, ["info", str(root)])
+    said = " ".join(run.output.split())
+    assert run.exit_code == 0, run.output
+    assert "repairing it" in said and "dropped episode 2" in said
+    again = runner.invoke(app, ["repair", str(root)])
+    assert again.exit_code == 0 and "nothing to repair" in again.output
     assert pq.read_metadata(sorted((root / "meta" / "episodes").rglob("*.parquet"))[0]).num_rows == 2
+    damaged = corruptions.damaged_copy(base, "actions x100", tmp_path / "x100")
+    refused = runner.invoke(app, ["merge", str(tmp_path / "merged"), str(damaged)])
+    said = " ".join(refused.output.split())  # rich wraps long lines
+    assert refused.exit_code == 2 and "is damaged" in said and "content_hash" in said
+    assert not (tmp_path / "merged").exists()
 
 
 @pytest.mark.slow

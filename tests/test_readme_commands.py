@@ -85,6 +85,6 @@ def test_readme_commands_run_as_written(tmp_path):
                 continue
             run = subprocess.run([str(exe), *args[1:]], cwd=cwd, env=env, capture_output=True, text=True,
                                  timeout=1200)
-            if run.returncode != 0 or "Traceback" in run.stderr:
+            if run.returncode != 0 or "Traceback" in run.stderr or "Exception ignored" in run.stderr:
                 failures.append(f"{' '.join(args)} (exit {run.returncode}): {run.stderr[-1500:]}")
     assert not failures, "\n\n".join(failures)

@@ -57,6 +57,9 @@ class DDPGConfig:
     q_ramp_updates: int = 0          # then the Q term's weight rises linearly from 0 to 1 over this many updates
     q_normalize: bool = False        # divide the Q term by the batch's mean |Q| (TD3+BC): the BC term keeps its
                                      # weight whatever the scale of the returns (|Q| reaches 1/(1−γ) = 100 here)
+    joint_actor_step: bool = False   # one actor step on replay + demo losses together: Adam rescales a step's
+                                     # gradient, so a pure-Q replay step moves the actor at full speed whatever
+                                     # its weight; only in a joint step do the Q weight and the BC term compete
 
 
 def q_term_scale(online_updates: int, config: DDPGConfig) -> float:
@@ -134,14 +137,20 @@ class DDPG:
         batch = self._tensors(replay.sample(cfg.batch_size, self.rng))
         critic_loss, q = self._critic_step(batch)
         metrics = {"critic_loss": critic_loss, "q": q}
-        if scale > 0:  # while the actor is held, the replay batch trains the critic only
-            metrics["actor_loss"] = self._actor_step(batch, scale)["actor_loss"]
-        # 2. demo batch
-        if demos is not None and self.uses_demos_in_loss:
+        with_demos = demos is not None and self.uses_demos_in_loss
+        if with_demos and cfg.joint_actor_step:
             demo_batch = self._tensors(demos.sample(cfg.demo_batch_size, self.rng))
             self._critic_step(demo_batch)
-            metrics.update({k: v for k, v in self._actor_step(demo_batch, scale, bc=True).items()
-                            if k != "actor_loss"})
+            metrics.update(self._actor_step([(batch, False), (demo_batch, True)], scale))
+        else:
+            if scale > 0:  # while the actor is held, the replay batch trains the critic only
+                metrics["actor_loss"] = self._actor_step([(batch, False)], scale)["actor_loss"]
+            # 2. demo batch
+            if with_demos:
+                demo_batch = self._tensors(demos.sample(cfg.demo_batch_size, self.rng))
+                self._critic_step(demo_batch)
+                metrics.update({k: v for k, v in self._actor_step([(demo_batch, True)], scale).items()
+                                if k != "actor_loss"})
         # 3. targets
         soft_update(self.actor_target, self.actor, cfg.tau)
         soft_update(self.critic_target, self.critic, cfg.tau)
@@ -166,7 +175,20 @@ class DDPG:
         self.critic_opt.step()
         return loss.item(), q.mean().item()
 
-    def _actor_step(self, b: dict[str, torch.Tensor], q_scale: float = 1.0, bc: bool = False) -> dict[str, float]:
+    def _actor_step(self, parts: list[tuple[dict[str, torch.Tensor], bool]], q_scale: float = 1.0) -> dict[str, float]:
+        """One Adam step of the actor on the summed losses of ``parts`` ((batch, with BC term) pairs);
+        ``actor_loss`` reports the first part's loss."""
+        losses, out = [], {}
+        for b, bc in parts:
+            loss, extra = self._actor_loss(b, q_scale, bc)
+            losses.append(loss)
+            out.update(extra)
+        self.actor_opt.zero_grad(set_to_none=True)
+        sum(losses).backward()
+        self.actor_opt.step()
+        return {"actor_loss": losses[0].item(), **out}
+
+    def _actor_loss(self, b: dict[str, torch.Tensor], q_scale: float, bc: bool) -> tuple[torch.Tensor, dict]:
         cfg = self.config
         pi = self.actor(b["o"], b["g"])
         if q_scale > 0:
@@ -191,11 +213,7 @@ class DDPG:
                 mask = torch.ones_like(per_sample_bc)
             objective = objective - cfg.bc_weight * mask * per_sample_bc
             out = {"bc_loss": per_sample_bc.mean().item(), "q_filter_pass": mask.mean().item()}
-        loss = -objective.mean() + cfg.action_l2 * pi.pow(2).mean()
-        self.actor_opt.zero_grad(set_to_none=True)
-        loss.backward()
-        self.actor_opt.step()
-        return {"actor_loss": loss.item(), **out}
+        return -objective.mean() + cfg.action_l2 * pi.pow(2).mean(), out
 
     # ------------------------------------------------------------------ checkpointing
     def state_dict(self) -> dict:

@@ -172,12 +172,16 @@ class EnsembleDDPG:
         scale = q_term_scale(self.online_updates[0], cfg)  # members advance in lock step
         critic_loss, q = self._critic_step(batch)
         metrics = {"critic_loss": critic_loss, "q": q}
-        if scale > 0:
-            metrics["actor_loss"] = self._actor_step(batch, scale)["actor_loss"]
-        if with_demos:
+        if with_demos and cfg.joint_actor_step:
             self._critic_step(demo_batch)
-            metrics.update({k: v for k, v in self._actor_step(demo_batch, scale, bc=True).items()
-                            if k != "actor_loss"})
+            metrics.update(self._actor_step([(batch, False), (demo_batch, True)], scale))
+        else:
+            if scale > 0:
+                metrics["actor_loss"] = self._actor_step([(batch, False)], scale)["actor_loss"]
+            if with_demos:
+                self._critic_step(demo_batch)
+                metrics.update({k: v for k, v in self._actor_step([(demo_batch, True)], scale).items()
+                                if k != "actor_loss"})
         torch._foreach_lerp_(list(self.actor_target.parameters()), list(self.actor.parameters()), cfg.tau)
         torch._foreach_lerp_(list(self.critic_target.parameters()), list(self.critic.parameters()), cfg.tau)
         self.online_updates = [u + 1 for u in self.online_updates]
@@ -199,7 +203,20 @@ class EnsembleDDPG:
         self.critic_opt.step()
         return per_member.detach(), q.detach().mean(1)
 
-    def _actor_step(self, b: dict[str, torch.Tensor], q_scale: float, bc: bool = False) -> dict[str, torch.Tensor]:
+    def _actor_step(self, parts: list[tuple[dict[str, torch.Tensor], bool]], q_scale: float) -> dict[str, torch.Tensor]:
+        """DDPG._actor_step for every member: one Adam step on the summed per-member losses of ``parts``."""
+        losses, out = [], {}
+        for b, bc in parts:
+            loss, extra = self._actor_loss(b, q_scale, bc)
+            losses.append(loss)
+            out.update(extra)
+        self.actor_opt.zero_grad(set_to_none=True)
+        sum(losses).sum().backward()
+        self.actor_opt.step()
+        return {"actor_loss": losses[0].detach(), **out}
+
+    def _actor_loss(self, b: dict[str, torch.Tensor], q_scale: float, bc: bool) -> tuple[torch.Tensor, dict]:
+        """Per-member actor losses (M,) on one stacked batch."""
         cfg = self.config
         pi = self._pi(self.actor, b["o"], b["g"])
         out = {}
@@ -223,11 +240,7 @@ class EnsembleDDPG:
                 mask = torch.ones_like(per_sample_bc)
             objective = objective - cfg.bc_weight * mask * per_sample_bc
             out = {"bc_loss": per_sample_bc.detach().mean(1), "q_filter_pass": mask.mean(1)}
-        per_member = -objective.mean(1) + cfg.action_l2 * pi.pow(2).mean((1, 2))
-        self.actor_opt.zero_grad(set_to_none=True)
-        per_member.sum().backward()
-        self.actor_opt.step()
-        return {"actor_loss": per_member.detach(), **out}
+        return -objective.mean(1) + cfg.action_l2 * pi.pow(2).mean((1, 2)), out
 
     # ------------------------------------------------------------------ checkpointing (single-run format)
     def member_state_dict(self, i: int) -> dict:
