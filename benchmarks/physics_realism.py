@@ -221,16 +221,30 @@ def timed_step(env, action, res: Result, probe: Probe, jaw_closing: list[bool]):
     return obs, info, terminated or truncated
 
 
+def probed_episodes(env, task: str, res: Result, seeds, check: bool = True):
+    """For each seed: reset, attach a fresh probe, yield ``(seed, obs, probe)`` for the caller to act; afterwards
+    (``check``) count what the episode left below, outside or inside, and keep its deepest overlaps."""
+    u = env.unwrapped
+    for seed in seeds:
+        obs, _ = env.reset(seed=seed)
+        probe = Probe()
+        probe.attach(u)
+        yield seed, obs, probe
+        if check:
+            check_end(task, probe, res)
+        res.merge_overlaps(probe)
+        probe.detach(u)
+        res.episodes += 1
+    env.close()
+
+
 def run_policy(task: str, policy: str, episodes: int) -> Result:
     env = gym.make(env_id(task))
     u = env.unwrapped
     res = Result(task, policy)
     dim = env.action_space.shape[0]
-    for seed in range(episodes):
+    for seed, obs, probe in probed_episodes(env, task, res, range(episodes)):
         rng = np.random.default_rng(1000 + seed)
-        obs, _ = env.reset(seed=seed)
-        probe = Probe()
-        probe.attach(u)
         done, hold, action = False, 0, np.zeros(dim)
         info = {}
         while not done:
@@ -244,11 +258,6 @@ def run_policy(task: str, policy: str, episodes: int) -> Result:
             closing = [a < 0 for a in np.asarray(action).reshape(-1, 5)[:, 4]]
             obs, info, done = timed_step(env, action, res, probe, closing)
         res.successes += int(info.get("is_success", 0.0) > 0)
-        check_end(task, probe, res)
-        res.merge_overlaps(probe)
-        probe.detach(u)
-        res.episodes += 1
-    env.close()
     return res
 
 
@@ -282,10 +291,7 @@ def run_poke_swipe(task: str, kind: str, episodes: int) -> Result:
     env = gym.make(env_id(task))
     u = env.unwrapped
     res = Result(task, kind)
-    for seed in range(episodes):
-        env.reset(seed=seed)
-        probe = Probe()
-        probe.attach(u)
+    for seed, _, probe in probed_episodes(env, task, res, range(episodes)):
         point, opening = object_point(u, task)
         yaw = float(np.arctan2(opening[1], opening[0]))
         side = np.array([-np.sin(yaw), np.cos(yaw), 0.0])     # along the blades' width: no blade faces the object
@@ -304,11 +310,6 @@ def run_poke_swipe(task: str, kind: str, episodes: int) -> Result:
                 timed_step(env, np.array([*(-direction[:2]), 0.0, 0, -1.0]), res, probe, [True])
             for _ in range(3):
                 timed_step(env, np.array([0, 0, 1.0, 0, -1.0]), res, probe, [True])
-        check_end(task, probe, res)
-        res.merge_overlaps(probe)
-        probe.detach(u)
-        res.episodes += 1
-    env.close()
     return res
 
 
@@ -319,11 +320,8 @@ def run_drops(task: str, episodes: int) -> Result:
     res = Result(task, "drop")
     heights = np.linspace(0.0, 0.06, 7)
     c = u.client
-    for seed in range(episodes):
+    for seed, _, probe in probed_episodes(env, task, res, range(episodes)):
         rng = np.random.default_rng(seed)
-        env.reset(seed=seed)
-        probe = Probe()
-        probe.attach(u)
         pos = np.asarray(c.getBasePositionAndOrientation(u.object_id)[0]) / SCALING
         h = heights[seed % len(heights)]
         if task == "PegTransfer":   # between the pegs of the two clusters, well clear of every peg
@@ -337,11 +335,6 @@ def run_drops(task: str, episodes: int) -> Result:
         c.changeDynamics(u.object_id, -1, activationState=c.ACTIVATION_STATE_WAKE_UP)
         for _ in range(12):
             timed_step(env, np.array([0, 0, 0, 0, 1.0]), res, probe, [False])
-        check_end(task, probe, res)
-        res.merge_overlaps(probe)
-        probe.detach(u)
-        res.episodes += 1
-    env.close()
     return res
 
 
@@ -357,12 +350,10 @@ def run_tracking(task: str, episodes: int) -> Result:
     actions = corners + [rng.uniform(-1, 1, 3) for _ in range(max(episodes - len(corners), 4))]
     bimanual = hasattr(u, "psms")
     worst = 0.0
-    for i, a in enumerate(actions):
+    for i, _, probe in probed_episodes(env, task, res, range(len(actions)), check=False):
+        a = actions[i]
         arm = i % 2 if bimanual else 0
         psm = u.psms[arm] if bimanual else u.psm
-        env.reset(seed=i)
-        probe = Probe()
-        probe.attach(u)
         ws = u.WORKSPACES[arm] if bimanual else WORKSPACE
         start = np.array([ws[0].mean(), ws[1].mean(), ws[2, 1] - 0.015])
         held = bimanual and u.HELD_AT_START == arm
@@ -395,11 +386,7 @@ def run_tracking(task: str, episodes: int) -> Result:
             if clipped or not reachable.within_limits or touched:
                 continue
             worst = max(worst, float(np.linalg.norm(tip() - tip0 - want) / np.linalg.norm(want)))
-        res.merge_overlaps(probe)
-        probe.detach(u)
-        res.episodes += 1
     res.tracking_error = worst
-    env.close()
     return res
 
 
