@@ -33,7 +33,7 @@ from rich.progress import Progress
 from rich.table import Table
 
 import surrol_data.envs  # noqa: F401  (registers the ids)
-from surrol_data.envs import env_id, objects, peg_board, physics
+from surrol_data.envs import env_id, objects, peg_board
 from surrol_data.envs.psm import JAW_JOINTS
 from surrol_data.envs import kinematics as kin
 from surrol_data.envs.psm_env import WORKSPACE, WORKSPACE_MARGIN
@@ -45,6 +45,7 @@ SCENARIOS = ["poke", "swipe", "drop", "tracking"]
 GRASPING_TASKS = ["GauzeRetrieve", "NeedlePick", "PegTransfer"]      # poke/swipe targets (single arm, jaw free)
 DROP_TASKS = ["GauzeRetrieve", "NeedlePick", "PegTransfer"]          # gauze→tray floor, needle→pad, block→board
 INSIDE_TOLERANCE_M = 0.001
+_PLACE_ABOVE_M = 0.1   # drop tests: where an object is first put to measure how far its lowest point hangs down
 OVERLAP_CLASSES = ("tool-static", "tool-object", "object-static", "object-object")
 # Blade geometry (jaw link frame, metres) for the independent between-the-blades check: each blade's inner face
 # is its link's x = 0 plane; the blade runs 10.2 mm along +y.
@@ -135,11 +136,10 @@ class Probe:
 
 
 def has_collision_shape(c, body: int) -> bool:
-    try:
-        with physics._stdout_silenced(fds=(1, 2)):   # PyBullet prints a warning before it raises
-            return bool(c.getCollisionShapeData(body, -1))
-    except Exception:   # PyBullet raises for bodies without any shape (e.g. the endoscope's)
-        return False
+    """A body without a collision shape (goal marker, endoscope) has a bounding box of zero size.
+    (``getCollisionShapeData`` cannot tell: it fails on maximal-coordinate bodies such as the needle.)"""
+    lo, hi = c.getAABB(body)
+    return any(h > l for l, h in zip(lo, hi))
 
 
 def relative_pose(c, body: int, obj: int) -> np.ndarray:
@@ -313,6 +313,15 @@ def run_poke_swipe(task: str, kind: str, episodes: int) -> Result:
     return res
 
 
+def gap_to_surface(c, obj: int, statics: list[int], surface: float) -> float:
+    """Height (real metres) of ``obj``'s lowest point above the horizontal support surface at ``surface``."""
+    gaps = [p[8] / SCALING for s in statics for p in c.getClosestPoints(obj, s, 2 * _PLACE_ABOVE_M * SCALING)
+            if abs(p[6][2] / SCALING - surface) < 1e-4]
+    if not gaps:
+        raise RuntimeError("drop test: no support surface found below the object")
+    return min(gaps)
+
+
 def run_drops(task: str, episodes: int) -> Result:
     """The task object released at rest, 0–60 mm above its support, in random orientations, and left to settle."""
     env = gym.make(env_id(task))
@@ -326,11 +335,13 @@ def run_drops(task: str, episodes: int) -> Result:
         h = heights[seed % len(heights)]
         if task == "PegTransfer":   # between the pegs of the two clusters, well clear of every peg
             pos = peg_board.BOARD_ORIGIN + np.array([0.035, rng.uniform(-0.01, 0.01), 0.0])
-            pos[2] = support_z(task, pos[:2]) + 0.0092
-        else:
-            pos[2] = support_z(task, pos[:2]) + 0.003
+        surface = support_z(task, pos[:2])
         quat = c.getQuaternionFromEuler(rng.uniform(-np.pi, np.pi, 3) if seed % 2 else [0, 0, rng.uniform(-3, 3)])
-        c.resetBasePositionAndOrientation(u.object_id, ((pos + [0, 0, h]) * SCALING).tolist(), quat)
+        # The drop height is that of the object's lowest point: place it well above, measure the gap, lower it.
+        pos[2] = surface + _PLACE_ABOVE_M
+        c.resetBasePositionAndOrientation(u.object_id, (pos * SCALING).tolist(), quat)
+        pos[2] += h - gap_to_surface(c, u.object_id, probe.static, surface)
+        c.resetBasePositionAndOrientation(u.object_id, (pos * SCALING).tolist(), quat)
         c.resetBaseVelocity(u.object_id, [0, 0, 0], [0, 0, 0])
         c.changeDynamics(u.object_id, -1, activationState=c.ACTIVATION_STATE_WAKE_UP)
         for _ in range(12):
