@@ -50,6 +50,7 @@ OVERLAP_CLASSES = ("tool-static", "tool-object", "object-static", "object-object
 # Blade geometry (jaw link frame, metres) for the independent between-the-blades check: each blade's inner face
 # is its link's x = 0 plane; the blade runs 10.2 mm along +y.
 _BLADE_LENGTH_M, _FACE_TOL_M = 0.0102, 0.0003
+_MIN_OPENING_RAD = np.deg2rad(2.0)   # blade 7 minus blade 6 (the jaw angle); a closed jaw reads 0 ± 1°
 
 
 @dataclass
@@ -154,7 +155,11 @@ def between_blades(c, body: int, obj: int) -> bool:
     """Independent geometric check: does the object touch both blades on their inner faces, within the blades?
 
     A touch counts when the contact normal (object → blade) points across the closing gap, within 45° of the
-    blade's inner-face normal, at a point along the blade's length (not beyond its end)."""
+    blade's inner-face normal, at a point along the blade's length (not beyond its end); and the blades must be
+    apart (a closed jaw has nothing between them)."""
+    q = [s[0] for s in c.getJointStates(body, JAW_JOINTS)]
+    if q[1] - q[0] < _MIN_OPENING_RAD:
+        return False
     for j, towards_other in zip(JAW_JOINTS, (-1.0, 1.0)):
         link = c.getLinkState(body, j, computeForwardKinematics=True)
         inv_p, inv_q = c.invertTransform(link[4], link[5])

@@ -94,6 +94,10 @@ GRASP_MAX_FORCE = 20.0              # the weld's force limit (reference: maxForc
 # The grip before the task's lift condition holds stands in for the squeezing jaws' friction: 2.0 let the
 # 50 g gauze slide 1.6 mm in the hand while the oracle lifted it; 5.0 (~10× its weight) holds it within 0.1 mm.
 GRASP_FRICTION_FORCE = 5.0
+# Nothing lies between the blades of a closed jaw. The thinnest thing held, the 1.24 mm needle wire, keeps the
+# jaw at least 2·asin(0.62/10.2) ≈ 7° open; a closed jaw reads 0 ± 1°. Below this opening the blades' inner
+# faces may both touch an object only from inside it (a closed jaw pushed 3 mm into a block wall "gripped" it).
+GRASP_MIN_OPENING_RAD = float(np.deg2rad(3.0))
 GRASP_MAX_SLIP_M = 0.002            # a held object this far from where it was gripped is dropped (the issue's 2 mm)
 
 
