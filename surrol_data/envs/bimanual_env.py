@@ -106,6 +106,14 @@ class BimanualEnv(PsmEnv):
     def _build_world(self) -> None:
         objects.make_table(self.client, visual=self.visual)
         self.psms = (Psm(self.client, PSM1_RCM, visual=self.visual), Psm(self.client, PSM2_RCM, visual=self.visual))
+        # A shaft does not collide with the other arm: at the oracles' hand-overs the tools meet tip to tip over
+        # the block or needle, and the 8 mm shafts, converging from the two RCMs, would touch the other tool's
+        # shaft and wrist and jam it (a limit of those plans more than of the arms). Each shaft still collides
+        # with the scene and the objects; the two wrists and jaw pairs still collide with each other.
+        a, b = self.psms[0].body, self.psms[1].body
+        for link in range(self.client.getNumJoints(a)):
+            self.client.setCollisionFilterPair(a, b, 3, link, 0)
+            self.client.setCollisionFilterPair(a, b, link, 3, 0)
         self.object_id = -1
         self.build_scene()
         self.goal_marker = objects.make_goal_marker(self.client, visual=self.visual)
