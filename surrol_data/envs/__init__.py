@@ -16,8 +16,12 @@ TASKS = {
     "MisOrient": "surrol_data.envs.tasks.mis_orient:MisOrient",
     "StaticTrack": "surrol_data.envs.tasks.static_track:StaticTrack",
     "ActiveTrack": "surrol_data.envs.tasks.active_track:ActiveTrack",
+    "PickAndPlace": "surrol_data.envs.tasks.pick_and_place:PickAndPlace",
+    "MatchBoard": "surrol_data.envs.tasks.match_board:MatchBoard",
 }
-DEFAULT_MAX_EPISODE_STEPS = {name: 500 if name == "ActiveTrack" else 50 for name in TASKS}
+# Multi-object and sequential tasks get longer horizons: one pick-and-place takes the oracle about 25 steps.
+LONG_HORIZONS = {"ActiveTrack": 500, "PickAndPlace": 100}
+DEFAULT_MAX_EPISODE_STEPS = {name: LONG_HORIZONS.get(name, 50) for name in TASKS}
 
 
 def env_id(task: str) -> str:
