@@ -18,9 +18,11 @@ TASKS = {
     "ActiveTrack": "surrol_data.envs.tasks.active_track:ActiveTrack",
     "PickAndPlace": "surrol_data.envs.tasks.pick_and_place:PickAndPlace",
     "MatchBoard": "surrol_data.envs.tasks.match_board:MatchBoard",
+    "MatchBoardPanel": "surrol_data.envs.tasks.match_board_panel:MatchBoardPanel",
 }
-# Multi-object and sequential tasks get longer horizons: one pick-and-place takes the oracle about 25 steps.
-LONG_HORIZONS = {"ActiveTrack": 500, "PickAndPlace": 100}
+# Multi-object and sequential tasks get longer horizons: one pick-and-place takes the oracle about 25 steps, a
+# simulated expert 90, a novice up to 200 (the haptic horizon is 3× the registered one).
+LONG_HORIZONS = {"ActiveTrack": 500, "PickAndPlace": 150, "MatchBoardPanel": 100}
 DEFAULT_MAX_EPISODE_STEPS = {name: LONG_HORIZONS.get(name, 50) for name in TASKS}
 
 

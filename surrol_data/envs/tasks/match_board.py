@@ -6,8 +6,9 @@ lies on the table at a random place and turn. The groove takes the block only th
 the block rests on the board's top instead.
 
 Achieved goal: the block's glyph centre. Desired goal: where that centre is when the block is seated in its
-groove. Success: within 2.5 mm across and 1.5 mm in height of it — only a seated block is that low (the groove
-is 3 mm deep), so success means in the groove, the right way round.
+groove. Success: within 2.5 mm across and 0.8 mm in height of it — only a block lying flat in its groove is that low
+(the groove is 3 mm deep; a block turned the wrong way round that tips partly in stays 1.3 mm or more higher),
+so success means in the groove, the right way round.
 
 Observation (19): the tip's 7 terms; the block's glyph centre, centre − tip, the grasp point (the top of the
 stroke the jaws close across) and the block's Euler angles.
@@ -25,30 +26,25 @@ from surrol_data.envs.psm_env import WORKSPACE, PsmEnv, wrap_angle
 OPEN, CLOSE = 0.5, -0.5
 
 
-class MatchBoardScene:
-    """The board and the episode's block (a mixin before the env base class; MatchBoardPanel shares it)."""
+class GlyphBlockScene:
+    """The episode's digit or letter block: placement, grasp point and the oracle's pick-and-drop (a mixin before
+    the env base class, shared by MatchBoard and MatchBoardPanel)."""
 
     GLYPHS = tuple(mb.GLYPHS)
-    BOARD_ORIGIN = np.array([0.55, 0.028, mb.objects.TABLE_TOP_Z])
     BLOCK_REGION = np.array([[0.52, 0.58], [-0.035, -0.012]])   # glyph centre on the table
     BLOCK_YAW_RANGE = np.deg2rad(45.0)
     GRASP_DEPTH_M = 0.002          # tip below the block's top when grasping
     APPROACH_M = 0.004
-    CLEARANCE_M = 0.003            # carried block's bottom above the board
-    RELEASE_HEIGHT_M = 0.0005      # block bottom above the board's top when the jaw opens over the groove
-    XY_TOLERANCE_M = 0.0025
-    HEIGHT_TOLERANCE_M = 0.0015
     WELD_LIFT_M = 0.0025
 
-    def build_scene(self) -> None:
-        self.board = mb.make_match_board(self.client, self.BOARD_ORIGIN, self.GLYPHS, visual=self.visual)
+    def build_blocks(self) -> None:
         self._block_specs = {g: mb.block_spec(self.client, g, visual=self.visual) for g in self.GLYPHS}
         self.glyph = self.GLYPHS[0]
 
     def respawn_objects(self) -> None:
         """Blocks are spawned in :meth:`place_block_at_random`, once the episode has drawn which one."""
 
-    def place_block_at_random(self, rng: np.random.Generator) -> None:
+    def place_block_at_random(self, rng: np.random.Generator, surface_z: float = mb.objects.TABLE_TOP_Z) -> None:
         self.glyph = self.GLYPHS[int(rng.integers(len(self.GLYPHS)))]
         if self.object_id >= 0:
             self.client.removeBody(self.object_id)
@@ -56,7 +52,7 @@ class MatchBoardScene:
         self.grasp.object_id = self.object_id
         xy = rng.uniform(self.BLOCK_REGION[:, 0], self.BLOCK_REGION[:, 1])
         yaw = float(rng.uniform(-self.BLOCK_YAW_RANGE, self.BLOCK_YAW_RANGE))
-        mb.place_block(self.client, self.object_id, self.glyph, xy, mb.table_surface_z(), yaw)
+        mb.place_block(self.client, self.object_id, self.glyph, xy, surface_z, yaw)
 
     def block_pose(self) -> tuple[np.ndarray, np.ndarray]:
         return mb.block_pose(self.client, self.object_id, self.glyph)
@@ -70,10 +66,6 @@ class MatchBoardScene:
     def block_achieved_goal(self) -> np.ndarray:
         return self.block_pose()[0]
 
-    def seated(self, achieved, desired) -> np.ndarray:
-        e = np.asarray(achieved, dtype=np.float64) - np.asarray(desired, dtype=np.float64)
-        return (np.linalg.norm(e[..., :2], axis=-1) < self.XY_TOLERANCE_M) & (np.abs(e[..., 2]) < self.HEIGHT_TOLERANCE_M)
-
     def block_object_state(self):
         centre, rot = self.block_pose()
         return centre, self.grasp_point(), kin.euler_xyz(rot)
@@ -81,9 +73,11 @@ class MatchBoardScene:
     def block_lifted(self) -> bool:
         return self.block_pose()[0][2] > self._block_start_z + self.WELD_LIFT_M
 
-    def block_plan(self, current_yaw: float, seat) -> list[dict]:
-        """Waypoints that grasp the block, carry it over its groove turned the right way and let it drop in.
-        ``seat(obs)`` gives the block's desired centre from the observation."""
+    def block_plan(self, current_yaw: float, seat, carry_bottom_z: float, release_bottom_z: float,
+                   turn_to_seat: bool = True) -> list[dict]:
+        """Waypoints that grasp the block, carry it (its bottom at ``carry_bottom_z``) over its seat
+        (``seat(obs)``: the block's desired centre from the observation), lower it to ``release_bottom_z`` and
+        let it drop in. ``turn_to_seat``: turn the block to yaw 0 on the way (a groove takes it only so)."""
         centre, rot = self.block_pose()
         block_yaw = mb.yaw_of(rot)
         _, across = mb.grasp_pixel(self.glyph)
@@ -91,16 +85,16 @@ class MatchBoardScene:
         if abs(wrap_angle(yaw - current_yaw)) > np.pi / 2:
             yaw = float(wrap_angle(yaw + np.pi))
         # Turning the tool turns the held block with it: seated means the block's yaw is 0.
-        place_yaw = float(wrap_angle(yaw - block_yaw))
+        place_yaw = float(wrap_angle(yaw - block_yaw)) if turn_to_seat else yaw
         grasp = self.grasp_point() - np.array([0.0, 0.0, self.GRASP_DEPTH_M])
         tip_above_bottom = mb.BLOCK_HEIGHT - self.GRASP_DEPTH_M
-        carry_z = self.board.top_z + self.CLEARANCE_M + tip_above_bottom
-        release_z = self.board.top_z + self.RELEASE_HEIGHT_M + tip_above_bottom
+        carry_z = carry_bottom_z + tip_above_bottom
+        release_z = release_bottom_z + tip_above_bottom
 
         def over_groove(z):
             def target(obs):
                 t = np.asarray(obs["observation"][:3], np.float64)
-                err = np.asarray(seat(obs), np.float64) - np.asarray(self.block_goal_of(obs), np.float64)
+                err = np.asarray(seat(obs), np.float64) - np.asarray(obs["achieved_goal"][:3], np.float64)
                 return np.array([t[0] + err[0], t[1] + err[1], z])
             return target
 
@@ -125,13 +119,18 @@ class MatchBoardScene:
             {"target": retreat, "yaw": place_yaw, "jaw": OPEN, "tol": 2e-3},
         ]
 
-    def block_goal_of(self, obs) -> np.ndarray:
-        """The block's glyph centre as the observation reports it (its achieved goal)."""
-        return obs["achieved_goal"]
 
-
-class MatchBoard(MatchBoardScene, PsmEnv):
+class MatchBoard(GlyphBlockScene, PsmEnv):
     TASK = "Pick up the digit or letter block and place it in its matching groove on the board."
+    BOARD_ORIGIN = np.array([0.55, 0.028, mb.objects.TABLE_TOP_Z])
+    CLEARANCE_M = 0.003            # carried block's bottom above the board
+    RELEASE_HEIGHT_M = 0.0005      # block bottom above the board's top when the jaw opens over the groove
+    XY_TOLERANCE_M = 0.0025
+    HEIGHT_TOLERANCE_M = 0.0008
+
+    def build_scene(self) -> None:
+        self.board = mb.make_match_board(self.client, self.BOARD_ORIGIN, self.GLYPHS, visual=self.visual)
+        self.build_blocks()
 
     def reset_task(self, rng):
         self.place_block_at_random(rng)
@@ -153,10 +152,13 @@ class MatchBoard(MatchBoardScene, PsmEnv):
         return self.block_achieved_goal()
 
     def is_success(self, achieved_goal, desired_goal) -> np.ndarray:
-        return self.seated(achieved_goal, desired_goal)
+        e = np.asarray(achieved_goal, dtype=np.float64) - np.asarray(desired_goal, dtype=np.float64)
+        return (np.linalg.norm(e[..., :2], axis=-1) < self.XY_TOLERANCE_M) & (np.abs(e[..., 2]) < self.HEIGHT_TOLERANCE_M)
 
     def object_state(self):
         return self.block_object_state()
 
     def plan_oracle(self):
-        return self.block_plan(float(self.robot_state()[5]), lambda obs: obs["desired_goal"])
+        top = self.board.top_z
+        return self.block_plan(float(self.robot_state()[5]), lambda obs: obs["desired_goal"],
+                               top + self.CLEARANCE_M, top + self.RELEASE_HEIGHT_M)
