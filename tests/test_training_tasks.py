@@ -48,7 +48,7 @@ def test_pick_and_place_goals_report_every_jack_and_their_trays():
     e = gym.make("SurRoL/PickAndPlace-v0")
     u = e.unwrapped
     n = len(u.COLOURS)
-    assert e.spec.max_episode_steps == 150
+    assert e.spec.max_episode_steps == 200
     slots = set()
     for seed in range(12):
         obs, _ = e.reset(seed=seed)
@@ -207,10 +207,15 @@ def test_panel_subtasks_are_done_in_order_by_the_oracle():
     e.close()
 
 
-@pytest.mark.parametrize("episodes", [6, pytest.param(100, marks=pytest.mark.slow)])
+# The oracle is done within these many steps (48, 35 and 57 on average); the slow test runs the whole horizon.
+ORACLE_STEPS = {"PickAndPlace": 70, "MatchBoard": 50, "MatchBoardPanel": 75}
+
+
+@pytest.mark.parametrize("episodes", [4, pytest.param(100, marks=pytest.mark.slow)])
 @pytest.mark.parametrize("task", TASKS)
 def test_oracle_success_rate(task, episodes):
     e = gym.make(f"SurRoL/{task}-v0")
-    final = [run_oracle(e, seed).successes[-1] for seed in range(episodes)]
+    steps = ORACLE_STEPS[task] if episodes < 100 else None
+    final = [run_oracle(e, seed, steps).successes[-1] for seed in range(episodes)]
     assert np.mean(final) >= 0.95
     e.close()

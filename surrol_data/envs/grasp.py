@@ -46,6 +46,7 @@ class Grasp:
         self.psm = psm
         self.object_id = object_id
         self.object_link = object_link   # -1: the object's base; else a link of it (a drawer's handle)
+        self.max_slip_m = physics.GRASP_MAX_SLIP_M
         self.lift_condition = lift_condition or (lambda: True)
         self.constraint: int | None = None
         self.welded = False              # the full-strength weld (after the lift condition), not the grip
@@ -98,7 +99,7 @@ class Grasp:
         elif self.constraint is None:
             if self.between_blades():
                 self._attach(physics.GRASP_FRICTION_FORCE)
-        elif self.slip_m() > physics.GRASP_MAX_SLIP_M:
+        elif self.slip_m() > self.max_slip_m:
             self.drops += 1
             self.release()
         elif not self.welded and self.lift_condition():

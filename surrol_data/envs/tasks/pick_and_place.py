@@ -40,7 +40,7 @@ class PickAndPlace(PsmEnv):
     JACK_REGION = np.array([[0.510, 0.590], [-0.040, -0.008]])
     JACK_SPACING_M = 0.022
     GRASP_ALONG_M = 0.6 * jacks.JACK_ARM_LENGTH   # grasp an upward arm this far out from the centre ...
-    GRASP_DEPTH_M = 0.0005                         # ... with the tip this far below its axis
+    GRASP_DEPTH_M = 0.0015                         # ... with the tip this far below its axis (room for misjudged height)
     APPROACH_M = 0.004                             # pre-grasp height above the grasp point
     CLEARANCE_M = 0.003                            # carried jack's lowest point above the tray walls
     RELEASE_HEIGHT_M = 0.004                       # lowest point above the tray floor when the jaw opens
