@@ -16,8 +16,15 @@ TASKS = {
     "MisOrient": "surrol_data.envs.tasks.mis_orient:MisOrient",
     "StaticTrack": "surrol_data.envs.tasks.static_track:StaticTrack",
     "ActiveTrack": "surrol_data.envs.tasks.active_track:ActiveTrack",
+    "PickAndPlace": "surrol_data.envs.tasks.pick_and_place:PickAndPlace",
+    "MatchBoard": "surrol_data.envs.tasks.match_board:MatchBoard",
+    "MatchBoardPanel": "surrol_data.envs.tasks.match_board_panel:MatchBoardPanel",
 }
-DEFAULT_MAX_EPISODE_STEPS = {name: 500 if name == "ActiveTrack" else 50 for name in TASKS}
+# Multi-step tasks get longer horizons, sized for people: haptic collection allows 3× the registered horizon, and
+# simulated novices need up to ~430 steps for PickAndPlace (two jacks) or MatchBoardPanel (drawer, then block)
+# and ~180 for MatchBoard (the oracle: 48, 57 and 35).
+LONG_HORIZONS = {"ActiveTrack": 500, "PickAndPlace": 200, "MatchBoard": 100, "MatchBoardPanel": 200}
+DEFAULT_MAX_EPISODE_STEPS = {name: LONG_HORIZONS.get(name, 50) for name in TASKS}
 
 
 def env_id(task: str) -> str:

@@ -128,6 +128,10 @@ class PsmEnv(gym.Env):
         """Waypoints for the oracle, computed at reset from the settled scene."""
         return []
 
+    def goal_marker_position(self) -> np.ndarray:
+        """Where the green goal sphere is drawn (real metres): the goal, for tasks whose goal is one point."""
+        return self.goal
+
     def grasp_lift_condition(self) -> bool:
         """The task's condition for welding an object the blades hold (reference §3), e.g. the needle lifted
         5 mm by the squeezing jaws. ``object_start_z`` is the achieved goal's height when the episode began."""
@@ -168,7 +172,8 @@ class PsmEnv(gym.Env):
         """After the scene has settled: draw the goal, plan the oracle, and return the first (obs, info)."""
         self.goal = np.asarray(self.sample_goal(self.np_random), dtype=np.float64)
         self.object_start_z = float(self.achieved_goal()[2])
-        self.client.resetBasePositionAndOrientation(self.goal_marker, (self.goal * SCALING).tolist(), [0, 0, 0, 1])
+        marker = self.goal_marker_position()
+        self.client.resetBasePositionAndOrientation(self.goal_marker, (marker * SCALING).tolist(), [0, 0, 0, 1])
         self._waypoints = self.plan_oracle()
         self._wp_index = 0
         self._hold = 0

@@ -14,7 +14,7 @@ scene's exact numbers:
 * **buttons**: button 1 to close the jaw on the object; button 2 (clutch) to re-centre the hand when the next
   move would run into the edge of the stylus' workspace — experts re-position before a long move, novices
   when they hit the edge;
-* **recover**: when the object does not come along as the tool lifts (``info["grasped"]`` is false), open,
+* **recover**: when the object does not come along as the tool lifts or pulls (``info["grasped"]`` is false), open,
   back off, re-approach the object where it now lies, and grasp again; give up after a few failures.
 
 The operator keeps its own clock; every random draw comes from a generator seeded by (seed, operator
@@ -47,7 +47,8 @@ TOOL_MAX_YAW_SPEED = ACTION_YAW_RAD / CONTROL_PERIOD_S
 # Observation layout of single-PSM tasks with an object (PsmEnv._get_obs): tip 0:3, tip yaw 5, jaw 6,
 # the object's grasp point 13:16 and its yaw 18.
 _TIP, _YAW, _JAW, _OBJECT_POINT, _OBJECT_YAW = slice(0, 3), 5, 6, slice(13, 16), 18
-_LIFT_TO_NOTICE_MM = 2.0     # a person sees the object stay behind once the tool has risen this much
+_LIFT_TO_NOTICE_MM = 2.0     # a person sees the object stay behind once the tool has moved this much (lifting it,
+                             # or pulling a handle)
 _CLUTCH_SPEED_MM_S = 250.0   # re-centring the hand moves nothing on screen: it goes at ordinary reaching speed
 _CLUTCH_TARGET_MM = 20.0     # and needs no precision (the Fitts width of a re-centring move)
 # A person grasping an object that lies on a surface takes the open jaws down onto the surface before closing
@@ -188,6 +189,7 @@ class SimulatedOperator(Device):
         self._jaw_wait_last = None         # jaw angle at the last check while waiting for the jaw
         self._holding = False              # closed on the object and waiting for it to come along
         self._hold_height = 0.0
+        self._hold_tip = np.zeros(3)
         self._grasp_segment: tuple[int, int] | None = None
         self._failures = 0
         self._depth_bias = p.depth_bias_mm
@@ -345,6 +347,7 @@ class SimulatedOperator(Device):
         if self._jaw_closed:
             self._holding = True
             self._hold_height = float(self._obs["observation"][2])
+            self._hold_tip = np.asarray(self._obs["observation"][_TIP], np.float64).copy()
             self._grasp_segment = self._segment_ending_at(self._index)
         return "settled"
 
@@ -437,9 +440,10 @@ class SimulatedOperator(Device):
             worth = over & (gained > np.array([5.0, 5.0, 5.0, 0.2]))
             return np.where(worth, home, now) if worth.any() else None
         # Otherwise the edge is noticed only when the hand is (almost) there; then every axis that would
-        # overrun is re-centred.
+        # overrun is re-centred. A hand that has most of its room still ahead moves first (truncated): a move
+        # longer than three times the room would otherwise be clutched for again and again from the centre.
         left = room - np.sign(hand) * now          # room still ahead in the direction of the move
-        blocked = over & (left < 0.3 * np.abs(hand))
+        blocked = over & (left < 0.3 * np.abs(hand)) & (left < 0.6 * room)
         if not blocked.any():
             return None
         home = np.where(over, self._rng.normal(0.0, 1.0, POSE_DIM) * np.array([6.0, 6.0, 4.0, 0.1]), now)
@@ -461,11 +465,12 @@ class SimulatedOperator(Device):
 
     # ------------------------------------------------------------------ failed grasps
     def _monitor_grasp(self, t: float) -> None:
-        """While holding, watch the object: if it stays behind as the tool rises, the grasp failed."""
+        """While holding, watch the object: if it stays behind as the tool moves on (lifts it, pulls it), the grasp
+        failed."""
         if not self._holding or self._idle or self._info.get("grasped", True):
             return
-        risen_mm = (float(self._obs["observation"][2]) - self._hold_height) * 1000.0
-        if risen_mm < _LIFT_TO_NOTICE_MM:
+        moved_mm = np.linalg.norm(np.asarray(self._obs["observation"][_TIP], np.float64) - self._hold_tip) * 1000.0
+        if moved_mm < _LIFT_TO_NOTICE_MM:
             return
         self._recover(t)
 
