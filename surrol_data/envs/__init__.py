@@ -17,10 +17,12 @@ TASKS = {
     "StaticTrack": "surrol_data.envs.tasks.static_track:StaticTrack",
     "ActiveTrack": "surrol_data.envs.tasks.active_track:ActiveTrack",
     "PegBoard": "surrol_data.envs.tasks.peg_board:PegBoard",
+    "NeedleRings": "surrol_data.envs.tasks.needle_rings:NeedleRings",
 }
 # 50 steps (the reference's horizon) unless a task needs longer: ActiveTrack follows its target for 500 steps;
-# PegBoard takes the ring off, turns it and threads it (its oracle needs ~40 steps).
-LONG_HORIZONS = {"ActiveTrack": 500, "PegBoard": 100}
+# PegBoard takes the ring off, turns it and threads it, NeedleRings turns the needle through in steps and hands
+# it off (their oracles need ~40 and ~60 steps).
+LONG_HORIZONS = {"ActiveTrack": 500, "PegBoard": 100, "NeedleRings": 100}
 DEFAULT_MAX_EPISODE_STEPS = {name: LONG_HORIZONS.get(name, 50) for name in TASKS}
 
 

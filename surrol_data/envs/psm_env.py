@@ -83,6 +83,7 @@ class PsmEnv(gym.Env):
     ORACLE_TURN_GAIN = 0.4    # the oracle's largest rotation action per step
     ACTION_DIM = 5            # per arm 5; the bimanual base sets 10
     OBSERVATION_DIM = 0       # 0: 19 with object terms, else 7; the bimanual base sets 35
+    GOAL_DIM = 3              # a point (the goal marker shows its first three terms)
     # Instrumentation: when set (on an instance), called as ``substep_hook(env)`` after every physics substep
     # (benchmarks/physics_realism.py probes contacts there). Unset, it costs one attribute test per substep.
     substep_hook = None
@@ -103,7 +104,7 @@ class PsmEnv(gym.Env):
         self.endoscope = SceneEndoscope(self.client, camera_size, scene_scale=SCALING,
                                         renderer=camera_renderer) if camera else None
         self._tip = np.eye(4)
-        self.goal = np.zeros(3)
+        self.goal = np.zeros(self.GOAL_DIM)
         self._waypoints: list[dict] = []
         self._wp_index = 0
         self._hold = 0
@@ -111,7 +112,8 @@ class PsmEnv(gym.Env):
         obs_dim = self.OBSERVATION_DIM or (19 if self.OBJECT_OBS else 7)
         box = lambda n: spaces.Box(-np.inf, np.inf, shape=(n,), dtype=np.float32)  # noqa: E731
         self.observation_space = spaces.Dict(
-            {"observation": box(obs_dim), "achieved_goal": box(3), "desired_goal": box(3)})
+            {"observation": box(obs_dim), "achieved_goal": box(self.GOAL_DIM),
+             "desired_goal": box(self.GOAL_DIM)})
         if self.endoscope is not None:
             w, h = self.endoscope.size
             self.observation_space["image"] = spaces.Box(0, 255, shape=(h, w, 3), dtype=np.uint8)
@@ -192,7 +194,7 @@ class PsmEnv(gym.Env):
         """After the scene has settled: draw the goal, plan the oracle, and return the first (obs, info)."""
         self.goal = np.asarray(self.sample_goal(self.np_random), dtype=np.float64)
         self.object_start_z = float(self.achieved_goal()[2])
-        self.client.resetBasePositionAndOrientation(self.goal_marker, (self.goal * SCALING).tolist(), [0, 0, 0, 1])
+        self.client.resetBasePositionAndOrientation(self.goal_marker, (self.goal[:3] * SCALING).tolist(), [0, 0, 0, 1])
         self._waypoints = self.plan_oracle()
         self._wp_index = 0
         self._hold = 0

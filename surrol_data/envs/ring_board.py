@@ -125,16 +125,22 @@ def make_ring_board(client, visual: bool = True) -> RingBoard:
     return RingBoard(body=body)
 
 
-def _ring_segments() -> tuple[list, list, list]:
-    """Half extents, centres and orientations (scaled, ring frame) of the ring's boxes."""
-    side = 2 * RING_OUTER_RADIUS * np.tan(np.pi / RING_SEGMENTS)   # outer corners meet: no gaps
-    half = (np.array([RING_WIDTH / 2, side / 2, RING_THICKNESS / 2]) * SCALING).tolist()
+def ring_boxes(mean_radius: float, width: float, thickness: float,
+               segments: int = RING_SEGMENTS) -> tuple[list, list, list]:
+    """Half extents, centres and orientations (scaled, ring frame: axis along z) of a ring made of boxes."""
+    outer = mean_radius + width / 2
+    side = 2 * outer * np.tan(np.pi / segments)   # outer corners meet: no gaps
+    half = (np.array([width / 2, side / 2, thickness / 2]) * SCALING).tolist()
     halves, centres, quats = [], [], []
-    for a in np.arange(RING_SEGMENTS) * 2 * np.pi / RING_SEGMENTS:
+    for a in np.arange(segments) * 2 * np.pi / segments:
         halves.append(half)
-        centres.append((np.array([np.cos(a), np.sin(a), 0.0]) * RING_MEAN_RADIUS * SCALING).tolist())
+        centres.append((np.array([np.cos(a), np.sin(a), 0.0]) * mean_radius * SCALING).tolist())
         quats.append(pb.getQuaternionFromEuler([0.0, 0.0, float(a)]))
     return halves, centres, quats
+
+
+def _ring_segments() -> tuple[list, list, list]:
+    return ring_boxes(RING_MEAN_RADIUS, RING_WIDTH, RING_THICKNESS)
 
 
 def ring_spec(client, visual: bool = True) -> dict:
