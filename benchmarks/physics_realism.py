@@ -33,13 +33,14 @@ from rich.progress import Progress
 from rich.table import Table
 
 import surrol_data.envs  # noqa: F401  (registers the ids)
-from surrol_data.envs import env_id, objects, peg_board, physics
+from surrol_data.envs import env_id, objects, peg_board, physics, ring_board
 from surrol_data.envs.psm import JAW_JOINTS
 from surrol_data.envs import kinematics as kin
 from surrol_data.envs.psm_env import WORKSPACE, WORKSPACE_MARGIN
 from surrol_data.envs.units import ACTION_POSITION_M, SCALING
 
-TASKS = ["NeedleReach", "GauzeRetrieve", "NeedlePick", "PegTransfer", "NeedleRegrasp", "BiPegTransfer"]
+TASKS = ["NeedleReach", "GauzeRetrieve", "NeedlePick", "PegTransfer", "NeedleRegrasp", "BiPegTransfer", "PegBoard",
+         "NeedleRings"]
 POLICIES = ["random", "bang-bang", "oracle"]
 SCENARIOS = ["poke", "swipe", "drop", "tracking"]
 GRASPING_TASKS = ["GauzeRetrieve", "NeedlePick", "PegTransfer"]      # poke/swipe targets (single arm, jaw free)
@@ -184,7 +185,10 @@ def support_z(task: str, xy: np.ndarray) -> float:
     if task in ("PegTransfer", "BiPegTransfer"):
         on_board = np.all(np.abs(xy - peg_board.BOARD_ORIGIN[:2]) < peg_board.BOARD_HALF_EXTENTS[:2])
         return peg_board.BOARD_ORIGIN[2] + peg_board.BOARD_HALF_EXTENTS[2] if on_board else objects.TABLE_TOP_Z
-    return objects.TABLE_TOP_Z   # NeedleRegrasp: the needle is held in the air; the table is what it falls to
+    if task == "PegBoard":
+        on_board = np.all(np.abs(xy - ring_board.BOARD_CENTRE_XY) < ring_board.BOARD_HALF_EXTENTS[:2])
+        return ring_board.BOARD_TOP_Z if on_board else objects.TABLE_TOP_Z
+    return objects.TABLE_TOP_Z   # NeedleRegrasp, NeedleRings: the needle is held in the air over the table
 
 
 def check_end(task: str, probe: Probe, res: Result) -> None:

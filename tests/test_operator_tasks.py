@@ -77,13 +77,9 @@ def test_team_waits_for_the_other_hand():
         env.close()
 
 
-ALL_TASKS = ["NeedleReach", "GauzeRetrieve", "NeedlePick", "PegTransfer", "NeedleRegrasp", "BiPegTransfer",
-             "ECMReach", "MisOrient", "StaticTrack", "ActiveTrack"]
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("skill", ["expert", "novice"])
-@pytest.mark.parametrize("task", ALL_TASKS)
+@pytest.mark.parametrize("task", list(surrol_data.envs.TASKS))
 def test_expert_and_novice_succeed_on_every_task(tmp_path, task, skill):
     """Five attempts per task and skill at the session's default horizon; most succeed."""
     res = _collect(task, tmp_path / "ds", skill=skill, episodes=5, keep_failures=True, max_attempts=5)

@@ -74,5 +74,5 @@ def test_equal_seeds_give_equal_episodes(env):
 
 @pytest.mark.parametrize("episodes", [5, pytest.param(100, marks=pytest.mark.slow)])
 def test_oracle_success_rate(env, episodes):
-    results = [run_oracle(env, seed).successes.any() for seed in range(episodes)]
+    results = [run_oracle(env, seed).successes[-1] for seed in range(episodes)]   # success at the last step
     assert np.mean(results) >= 0.95

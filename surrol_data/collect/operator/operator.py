@@ -71,6 +71,7 @@ class _Subgoal:
     yaw_tol: float
     final: bool = False
     anchor: np.ndarray | None = None      # object grasp point and yaw when the target was set (object-relative)
+    snapshot: bool = False                # a callable target fixed where it points when the step begins
 
     def moved_with_object(self, point: np.ndarray, yaw: float) -> "_Subgoal":
         """The same subgoal for an object that has moved since (after a failed grasp pushed it)."""
@@ -254,7 +255,8 @@ class SimulatedOperator(Device):
                 tol_mm=1000.0 * float(wp.get("tol", 1e-3)),
                 yaw_tol=float(wp.get("yaw_tol", 0.05)),
                 final=i == len(plan) - 1,
-                anchor=anchor.copy() if fixed and anchor is not None else None))
+                anchor=anchor.copy() if fixed and anchor is not None else None,
+                snapshot=bool(wp.get("snapshot", False))))
         return goals
 
     # ------------------------------------------------------------------ perceiving
@@ -307,6 +309,8 @@ class SimulatedOperator(Device):
             if self._team is not None and not self._team.may_start(self, self._index):
                 return     # the other hand has not finished the previous step yet: wait for it
             goal = self._plan[self._index]
+            if goal.snapshot and callable(goal.target):
+                goal.target = np.asarray(goal.target(self._obs), np.float64).copy()
             if goal.final and self._info.get("is_success", 0.0):
                 self._finish(t, "done")
                 return

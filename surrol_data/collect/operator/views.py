@@ -22,6 +22,10 @@ from surrol_data.collect.mapping import MappingSettings
 from surrol_data.envs.units import ACTION_POSITION_M, ACTION_YAW_RAD, CONTROL_PERIOD_S
 
 
+LOOSE_TOL_M = 0.5        # a plan step this tolerant only says where to head, not how precisely
+SNAPSHOT_TOL_M = 0.003
+
+
 class PsmView:
     """A single-PSM task (``PsmEnv``): the observation and the plan as they are."""
 
@@ -104,6 +108,10 @@ class ArmView(PsmView):
             s = wp["arms"][self.arm]
             step = {"target": _raw_target(s["target"]), "jaw": s["jaw"], "tol": s.get("tol", 1e-3),
                     "yaw_tol": s.get("angle_tol", 0.05)}
+            if callable(s["target"]) and step["tol"] >= LOOSE_TOL_M:
+                # "Go roughly there while the other hand works" (e.g. back off 1 cm): the oracle keeps moving
+                # towards such a target; a person makes the move once, to where it pointed when the step began.
+                step.update(snapshot=True, tol=SNAPSHOT_TOL_M)
             if "angle" in s:
                 step["yaw"] = s["angle"]
             steps.append(step)
