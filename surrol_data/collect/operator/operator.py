@@ -40,15 +40,11 @@ from surrol_data.collect.operator.profiles import OperatorParams, identity_seed,
 from surrol_data.collect.operator.views import task_view
 from surrol_data.envs.physics import JAW_OPEN_RAD
 from surrol_data.envs.psm_env import wrap_angle
-from surrol_data.envs.units import ACTION_POSITION_M, ACTION_YAW_RAD, CONTROL_PERIOD_S
 
 # The Touch stylus' usable workspace is about 160 × 120 × 70 mm (x, y, z) around its centre; its last gimbal
 # (the stylus roll that drives the tool's rotation) turns about ±125°.
 DEVICE_HALF_RANGE = np.array([80.0, 60.0, 35.0, 2.2])
 GIMBAL_MARGIN_RAD = 0.2
-# The fastest tool motion the env executes (an action of 1 per step); faster hand motion is clipped away.
-TOOL_MAX_SPEED_MM_S = ACTION_POSITION_M * 1000.0 / CONTROL_PERIOD_S
-TOOL_MAX_YAW_SPEED = ACTION_YAW_RAD / CONTROL_PERIOD_S
 # Observation layout of single-PSM tasks with an object (PsmEnv._get_obs): tip 0:3, tip yaw 5, jaw 6,
 # the object's grasp point 13:16 and its yaw 18.
 _TIP, _YAW, _JAW, _OBJECT_POINT, _OBJECT_YAW = slice(0, 3), 5, 6, slice(13, 16), 18
