@@ -33,7 +33,7 @@ from rich.progress import Progress
 from rich.table import Table
 
 import surrol_data.envs  # noqa: F401  (registers the ids)
-from surrol_data.envs import drawer, env_id, jacks, match_board, objects, peg_board
+from surrol_data.envs import drawer, env_id, jacks, match_board, objects, peg_board, ring_board
 from surrol_data.envs.psm import JAW_JOINTS
 from surrol_data.envs import kinematics as kin
 from surrol_data.envs.psm_env import WORKSPACE, WORKSPACE_MARGIN
@@ -43,7 +43,7 @@ from surrol_data.envs.tasks.pick_and_place import PickAndPlace
 from surrol_data.envs.units import ACTION_POSITION_M, SCALING
 
 TASKS = ["NeedleReach", "GauzeRetrieve", "NeedlePick", "PegTransfer", "NeedleRegrasp", "BiPegTransfer",
-         "PickAndPlace", "MatchBoard", "MatchBoardPanel"]
+         "PickAndPlace", "MatchBoard", "MatchBoardPanel", "PegBoard", "NeedleRings"]
 POLICIES = ["random", "bang-bang", "oracle"]
 SCENARIOS = ["poke", "swipe", "drop", "tracking"]
 GRASPING_TASKS = ["GauzeRetrieve", "NeedlePick", "PegTransfer"]      # poke/swipe targets (single arm, jaw free)
@@ -214,7 +214,10 @@ def support_z(task: str, xy: np.ndarray) -> float:
         d = xy - MatchBoardPanel.CABINET_CENTRE[:2]
         over = abs(d[0]) < 0.036 and -0.02 - drawer.TRAVEL < d[1] < 0.021
         return objects.TABLE_TOP_Z + drawer.FLOOR_TOP if over else objects.TABLE_TOP_Z
-    return objects.TABLE_TOP_Z   # NeedleRegrasp: the needle is held in the air; the table is what it falls to
+    if task == "PegBoard":
+        on_board = np.all(np.abs(xy - ring_board.BOARD_CENTRE_XY) < ring_board.BOARD_HALF_EXTENTS[:2])
+        return ring_board.BOARD_TOP_Z if on_board else objects.TABLE_TOP_Z
+    return objects.TABLE_TOP_Z   # NeedleRegrasp, NeedleRings: the needle is held in the air; the table is what it falls to
 
 
 def check_end(task: str, probe: Probe, res: Result) -> None:

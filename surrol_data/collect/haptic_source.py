@@ -35,11 +35,12 @@ from tqdm import tqdm
 from surrol_data.collect.devices import HUMAN_DEVICES, Device, DeviceError, open_device
 from surrol_data.collect.devices.trace import mapping_from_dict, trace_path, write_trace
 from surrol_data.collect.mapping import ActionMapper, MappedStep, MappingSettings
+from surrol_data.collect.operator import SimulatedOperator
 from surrol_data.collect.recorder import DatasetRecorder
 from surrol_data.collect.script_source import features_for, first_seed
 from surrol_data.datasets.trajectory import TrajectoryBuilder
 from surrol_data.envs import env_id as make_env_id
-from surrol_data.envs.units import CONTROL_PERIOD_S
+from surrol_data.envs.units import ACTION_POSITION_M, ACTION_YAW_RAD, CONTROL_PERIOD_S
 
 # SurRoL-v2 recorded human NeedlePick demos with a 150-step horizon, 3× the scripted 50: people need the margin.
 HUMAN_HORIZON_FACTOR = 3
@@ -109,7 +110,9 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
     seed = first_seed(out, append, seed, "haptic")
     registered = gym.spec(eid).max_episode_steps
     replay_horizon = _replay_horizon(trace) if names == ["replay"] else None
-    horizon = max_steps or replay_horizon or HUMAN_HORIZON_FACTOR * registered
+    # Two hands take turns in a bimanual task (one waits while the other works): twice the single-arm margin.
+    arms = _arms_of(eid)
+    horizon = max_steps or replay_horizon or HUMAN_HORIZON_FACTOR * registered * arms
     env = gym.make(eid, max_episode_steps=horizon, **({"render_mode": "human"} if gui else {}), **(env_kwargs or {}))
     try:
         return _Session(env, eid, episodes, out, device, names, operator_id, skill, sides, mapping, trace, seed,
@@ -144,6 +147,14 @@ def parse_mapping(overrides: Sequence[str], base: MappingSettings | None = None)
         raise ValueError(f"--mapping: axis_permutation {values['axis_permutation']} must be a permutation of 0,1,2 "
                          f"and rotation_axis ({values['rotation_axis']}) one of 0, 1, 2")
     return mapping_from_dict(values)
+
+
+def _arms_of(eid: str) -> int:
+    """How many PSMs the task's action drives (an ECM task counts as one tool)."""
+    from importlib import import_module
+
+    module, name = gym.spec(eid).entry_point.split(":")
+    return max(getattr(import_module(module), name).ACTION_DIM // 5, 1)
 
 
 def _replay_horizon(trace) -> int | None:
@@ -195,6 +206,16 @@ class _Session:
             self.devices = list(device)
             if len(self.devices) != n_devices:
                 raise ValueError(f"{self.task} needs {n_devices} device(s), {len(self.devices)} given")
+        operators = [d for d in self.devices if isinstance(d, SimulatedOperator)]
+        if len(operators) > 1:   # two simulated hands on a bimanual task: one person
+            SimulatedOperator.work_together(operators)
+        # ECM tasks: the camera moves by camera_motion_scale × the hand motion and rolls by rotation_scale × the
+        # hand roll. The mapping's actions assume the PSM's units (1 = 1 cm, 30°); an ECM task may use others
+        # (StaticTrack's 1 mm, MisOrient's 3°), declared as ACTION_TRANSLATION_M / ACTION_ROTATION_RAD.
+        task_env = env.unwrapped
+        self.camera_rescale = np.array([*[ACTION_POSITION_M / getattr(task_env, "ACTION_TRANSLATION_M",
+                                                                      ACTION_POSITION_M)] * 3,
+                                        ACTION_YAW_RAD / getattr(task_env, "ACTION_ROTATION_RAD", ACTION_YAW_RAD)])
         self.replay = all(d.name == "replay" for d in self.devices)
         self.realtime = any(getattr(d, "realtime", False) for d in self.devices) if realtime is None else realtime
         self.live = _LiveStream(rerun_live, self.task) if rerun_live else None
@@ -285,6 +306,10 @@ class _Session:
         settings = [t.mapping(i) for i, t in enumerate(replayed)] if replayed else self.mappings
         mappers = [ActionMapper(m) for m in settings]
         obs, info = env.reset(seed=attempt_seed)
+        held = np.asarray(info.get("grasped", False)).reshape(-1)
+        for mapper, holds in zip(mappers, held):
+            if holds:    # the task starts with the object in this hand: the jaw command starts closed
+                mapper.jaw = -1.0
         builder = TrajectoryBuilder(obs, info["tip_position"], info["jaw_angle"])
         frames: list[list] = [[] for _ in self.devices]
         after_success = None
@@ -335,6 +360,7 @@ class _Session:
             # ECM tasks are driven by the device without holding both buttons: its motion at the camera scale.
             camera = s.camera if s.camera_mode else np.concatenate(
                 [s.arm[:3] * settings.camera_motion_scale / settings.motion_scale, s.arm[3:4]])
+            camera = camera * self.camera_rescale
             dim = space.shape[0]
             action = camera[3:4] if dim == 1 else camera[:dim]
         else:

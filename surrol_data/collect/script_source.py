@@ -30,7 +30,8 @@ class CollectResult:
 
 def features_for(env: gym.Env) -> dict:
     spaces = env.observation_space
-    n_arms = env.action_space.shape[0] // 5
+    # One tool per PSM (5 action terms each); an ECM task's one tool is the camera (a 1- to 4-D action).
+    n_arms = max(env.action_space.shape[0] // 5, 1)
     return frame_features(obs_dim=spaces["observation"].shape[0], goal_dim=spaces["desired_goal"].shape[0],
                           act_dim=env.action_space.shape[0], n_arms=n_arms)
 
