@@ -163,7 +163,8 @@ def info(dataset: Path = typer.Argument(..., help="Dataset folder.")):
 
 @app.command("eval")
 def evaluate_cmd(task: str = typer.Option(..., help="Task name, e.g. NeedlePick."),
-                 policy: str = typer.Option("oracle", help="'oracle' or the path of a BC checkpoint (.pt)."),
+                 policy: str = typer.Option("oracle", help="'oracle', 'lerobot:DIR' (a policy trained by lerobot-train) "
+                                                           "or the path of a BC checkpoint (.pt)."),
                  episodes: int = typer.Option(20, min=1),
                  seed: Optional[int] = typer.Option(None, help="Seed of the first episode; episode i uses seed + i "
                                                                "(default: 1,000,000,000, never a demo's seed)."),
