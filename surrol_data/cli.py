@@ -531,5 +531,21 @@ def push(dataset: Path = typer.Argument(..., help="Dataset folder."),
                   + (f", tag {plan.revision_tag}" if plan.revision_tag else ""))
 
 
+@app.command()
+def upgrade(dataset: Path = typer.Argument(..., help="Dataset folder written by an earlier surrol_data schema."),
+            keep_backup: bool = typer.Option(False, help="Keep the original beside it as DATASET.schema1.")):
+    """Rewrite a dataset in the current schema (environment state, next.truncated, named dimensions)."""
+    from surrol_data.datasets.reader import DatasetError
+    from surrol_data.datasets.upgrade import upgrade_dataset
+
+    try:
+        with console.status(f"upgrading {dataset}"):
+            report = upgrade_dataset(dataset, keep_backup=keep_backup)
+    except DatasetError as e:
+        _fail(str(e))
+    for line in report.lines():
+        console.print(line, highlight=False)
+
+
 if __name__ == "__main__":
     app()
