@@ -163,7 +163,8 @@ def info(dataset: Path = typer.Argument(..., help="Dataset folder.")):
 
 @app.command("eval")
 def evaluate_cmd(task: str = typer.Option(..., help="Task name, e.g. NeedlePick."),
-                 policy: str = typer.Option("oracle", help="'oracle' or the path of a BC checkpoint (.pt)."),
+                 policy: str = typer.Option("oracle", help="'oracle', 'lerobot:DIR' (a policy trained by lerobot-train) "
+                                                           "or the path of a BC checkpoint (.pt)."),
                  episodes: int = typer.Option(20, min=1),
                  seed: Optional[int] = typer.Option(None, help="Seed of the first episode; episode i uses seed + i "
                                                                "(default: 1,000,000,000, never a demo's seed)."),
@@ -528,6 +529,22 @@ def push(dataset: Path = typer.Argument(..., help="Dataset folder."),
     verb = "would upload" if dry_run else "uploaded"
     console.print(f"{verb} {len(plan.files)} files ({plan.bytes / 1e6:.2f} MB) to datasets/{repo_id}"
                   + (f", tag {plan.revision_tag}" if plan.revision_tag else ""))
+
+
+@app.command()
+def upgrade(dataset: Path = typer.Argument(..., help="Dataset folder written by an earlier surrol_data schema."),
+            keep_backup: bool = typer.Option(False, help="Keep the original beside it as DATASET.schema1.")):
+    """Rewrite a dataset in the current schema (environment state, next.truncated, named dimensions)."""
+    from surrol_data.datasets.reader import DatasetError
+    from surrol_data.datasets.upgrade import upgrade_dataset
+
+    try:
+        with console.status(f"upgrading {dataset}"):
+            report = upgrade_dataset(dataset, keep_backup=keep_backup)
+    except DatasetError as e:
+        _fail(str(e))
+    for line in report.lines():
+        console.print(line, highlight=False)
 
 
 if __name__ == "__main__":

@@ -40,6 +40,7 @@ from surrol_data.collect.recorder import DatasetRecorder
 from surrol_data.collect.script_source import features_for, first_seed
 from surrol_data.datasets.trajectory import TrajectoryBuilder
 from surrol_data.envs import env_id as make_env_id
+from surrol_data.envs.names import dimension_names
 from surrol_data.envs.units import ACTION_POSITION_M, ACTION_YAW_RAD, CONTROL_PERIOD_S
 
 # SurRoL-v2 recorded human NeedlePick demos with a 150-step horizon, 3× the scripted 50: people need the margin.
@@ -221,7 +222,7 @@ class _Session:
         self.live = _LiveStream(rerun_live, self.task) if rerun_live else None
         self.recorder = DatasetRecorder(self.out, task=self.task, env_id=eid, task_description=env.unwrapped.TASK,
                                         features=features_for(env), append=append, command=command,
-                                        checkpoint_every=1)
+                                        checkpoint_every=1, robot_type=dimension_names(env).robot_type)
         self.result = HapticResult(root=self.out)
 
     def _key_tracker(self, names):

@@ -12,6 +12,7 @@ from tqdm import tqdm
 from surrol_data.collect.recorder import DatasetRecorder
 from surrol_data.datasets.schema import frame_features
 from surrol_data.envs import env_id as make_env_id
+from surrol_data.envs.names import dimension_names
 from surrol_data.evaluation.rollout import ORACLE, rollout
 
 
@@ -30,10 +31,11 @@ class CollectResult:
 
 def features_for(env: gym.Env) -> dict:
     spaces = env.observation_space
-    # One tool per PSM (5 action terms each); an ECM task's one tool is the camera (a 1- to 4-D action).
-    n_arms = max(env.action_space.shape[0] // 5, 1)
+    names = dimension_names(env)   # one tool per PSM; an ECM task's one tool is the camera
     return frame_features(obs_dim=spaces["observation"].shape[0], goal_dim=spaces["desired_goal"].shape[0],
-                          act_dim=env.action_space.shape[0], n_arms=n_arms)
+                          act_dim=env.action_space.shape[0], n_arms=names.n_arms, state_names=names.state,
+                          achieved_goal_names=names.achieved_goal, desired_goal_names=names.desired_goal,
+                          action_names=names.action)
 
 
 def first_seed(out: str | Path, append: bool, seed: int | None, source: str) -> int:
@@ -76,7 +78,8 @@ def collect_script(task: str, episodes: int, out: str | Path, seed: int | None =
     result = CollectResult(root=Path(out))
     max_attempts = max_attempts or 3 * episodes
     recorder = DatasetRecorder(out, task=task_name, env_id=eid, task_description=env.unwrapped.TASK,
-                               features=features_for(env), append=append, command=command)
+                               features=features_for(env), append=append, command=command,
+                               robot_type=dimension_names(env).robot_type)
     bar = tqdm(total=episodes, desc=f"collect {task_name} (script)", unit="ep", disable=not progress)
     try:
         with recorder:
