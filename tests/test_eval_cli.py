@@ -10,7 +10,7 @@ from surrol_data.evaluation.rollout import EVAL_SEED_BASE
 
 def test_eval_records_task_policy_and_unseen_seeds(tmp_path):
     out = tmp_path / "eval.json"
-    result = CliRunner().invoke(app, ["eval", "--task", "NeedleReach", "--episodes", "2", "--max-steps", "3",
+    result = CliRunner().invoke(app, ["eval", "--task", "NeedleReach", "--num-episodes", "2", "--max-steps", "3",
                                       "--out", str(out)])
     assert result.exit_code == 0, result.output
     record = json.loads(out.read_text())      # strict JSON: a metric without a value is null, not NaN

@@ -37,7 +37,7 @@ from surrol_data.collect.devices.trace import mapping_from_dict, trace_path, wri
 from surrol_data.collect.mapping import ActionMapper, MappedStep, MappingSettings
 from surrol_data.collect.operator import SimulatedOperator
 from surrol_data.collect.recorder import DatasetRecorder
-from surrol_data.collect.script_source import features_for, first_seed
+from surrol_data.collect.script_source import features_for, first_seed, make_env
 from surrol_data.datasets.trajectory import TrajectoryBuilder
 from surrol_data.envs import env_id as make_env_id
 from surrol_data.envs.names import dimension_names
@@ -93,7 +93,7 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
     (``step`` counts from 1 in each attempt), e.g. to draw a frame. ``env_kwargs``: extra ``gym.make`` arguments.
     """
     if episodes <= 0:
-        raise ValueError(f"--episodes must be positive, got {episodes}")
+        raise ValueError(f"the number of episodes must be positive, got {episodes}")
     if skill not in SKILLS:
         raise ValueError(f"--skill must be one of {', '.join(SKILLS)}, got {skill!r}")
     names = [device] if isinstance(device, str) else [d.name for d in device]
@@ -114,7 +114,7 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
     # Two hands take turns in a bimanual task (one waits while the other works): twice the single-arm margin.
     arms = _arms_of(eid)
     horizon = max_steps or replay_horizon or HUMAN_HORIZON_FACTOR * registered * arms
-    env = gym.make(eid, max_episode_steps=horizon, **({"render_mode": "human"} if gui else {}), **(env_kwargs or {}))
+    env = make_env(eid, env_kwargs or {}, max_episode_steps=horizon, **({"render_mode": "human"} if gui else {}))
     try:
         return _Session(env, eid, episodes, out, device, names, operator_id, skill, sides, mapping, trace, seed,
                         horizon, keep_failures, append, gui, rerun_live, max_attempts or 3 * episodes, progress,

@@ -182,7 +182,7 @@ class DatasetRecorder:
             shutil.rmtree(self.root)
             self._exists = False
         if self._exists and not append:
-            raise FileExistsError(f"{self.root} already exists: pass append=True to add episodes to it, "
+            raise FileExistsError(f"{self.root} already exists: add episodes to it with --append, "
                                   "or choose a new folder")
         if self._exists:
             if not (self.root / INFO_PATH).exists():

@@ -11,6 +11,7 @@ from tqdm import tqdm
 
 from surrol_data.collect.recorder import DatasetRecorder
 from surrol_data.datasets.schema import frame_features
+from surrol_data.datasets.trajectory import ENV_CAMERA
 from surrol_data.envs import env_id as make_env_id
 from surrol_data.envs.names import dimension_names
 from surrol_data.evaluation.rollout import ORACLE, rollout
@@ -30,12 +31,30 @@ class CollectResult:
 
 
 def features_for(env: gym.Env) -> dict:
+    """The dataset features of ``env``'s episodes; an env made with ``camera=True`` adds the endoscope video."""
     spaces = env.observation_space
     names = dimension_names(env)   # one tool per PSM; an ECM task's one tool is the camera
+    cameras = {ENV_CAMERA: tuple(spaces["image"].shape[:2])} if "image" in spaces.spaces else None
     return frame_features(obs_dim=spaces["observation"].shape[0], goal_dim=spaces["desired_goal"].shape[0],
                           act_dim=env.action_space.shape[0], n_arms=names.n_arms, state_names=names.state,
                           achieved_goal_names=names.achieved_goal, desired_goal_names=names.desired_goal,
-                          action_names=names.action)
+                          action_names=names.action, cameras=cameras)
+
+
+def camera_kwargs(camera_size: tuple[int, int] | None) -> dict:
+    """``gym.make`` arguments that add the endoscope image (``camera_size`` = (width, height)) to the observation."""
+    return {} if camera_size is None else {"camera": True, "camera_size": tuple(int(v) for v in camera_size)}
+
+
+def make_env(eid: str, env_kwargs: dict, **kwargs) -> gym.Env:
+    """``gym.make(eid, ...)``; a camera asked of a task that has none is a clear error, not a TypeError."""
+    try:
+        return gym.make(eid, **kwargs, **env_kwargs)
+    except TypeError as e:
+        if "camera" in env_kwargs and "camera" in str(e):
+            raise ValueError(f"{eid} has no endoscope camera option (ECM tasks are the camera); record it without "
+                             "--camera") from None
+        raise
 
 
 def first_seed(out: str | Path, append: bool, seed: int | None, source: str) -> int:
@@ -59,21 +78,23 @@ def first_seed(out: str | Path, append: bool, seed: int | None, source: str) -> 
 
 def collect_script(task: str, episodes: int, out: str | Path, seed: int | None = 0, max_steps: int | None = None,
                    keep_failures: bool = False, append: bool = False, max_attempts: int | None = None,
-                   progress: bool = True, command: str | None = None) -> CollectResult:
+                   progress: bool = True, command: str | None = None,
+                   camera_size: tuple[int, int] | None = None) -> CollectResult:
     """Record ``episodes`` oracle episodes of ``task`` into the LeRobot dataset at ``out``.
 
     Attempt ``i`` uses seed ``seed + i`` (``seed=None``: 0, or with ``append`` the seed after the dataset's
     last scripted one, see :func:`first_seed`); an attempt is kept when it succeeded at some step (the original
     generator's rule), or always with ``keep_failures``. Gives up after ``max_attempts`` (default 3×).
+    ``camera_size`` = (width, height) also records the endoscope view as video.
     """
     if episodes <= 0:
-        raise ValueError(f"--episodes must be positive, got {episodes}")
+        raise ValueError(f"the number of episodes must be positive, got {episodes}")
     seed = first_seed(out, append, seed, "script")
     import surrol_data.envs  # noqa: F401  (registers the ids)
 
     eid = make_env_id(task)
     kwargs = {"max_episode_steps": max_steps} if max_steps else {}
-    env = gym.make(eid, **kwargs)
+    env = make_env(eid, camera_kwargs(camera_size), **kwargs)
     task_name = eid.split("/")[1].rsplit("-v", 1)[0]
     result = CollectResult(root=Path(out))
     max_attempts = max_attempts or 3 * episodes

@@ -2,8 +2,8 @@
 
 No ``lerobot`` import (it costs ~6 s and ~0.9 GB): the layout is read with pyarrow. LeRobot writes one
 row group per episode, so one episode is one row-group read (~0.5 ms); :meth:`DatasetReader.transitions`
-reads the whole dataset in one pass. Videos are not decoded here (``Trajectory.images`` comes back
-empty); use ``lerobot.datasets.lerobot_dataset.LeRobotDataset`` for frames.
+reads the whole dataset in one pass. Camera frames are decoded on request (:meth:`DatasetReader.frames`,
+``trajectory(ep, images=True)``) with PyAV (:mod:`surrol_data.datasets.video`).
 
 What each column holds is fixed by :mod:`surrol_data.datasets.schema`.
 """
@@ -324,8 +324,12 @@ class DatasetReader:
     def _trajectory_from(self, table: pa.Table) -> Trajectory:
         return trajectory_from_table(table, self.features)
 
-    def trajectory(self, ep: int) -> Trajectory:
-        """Episode ``ep`` as a :class:`Trajectory` (T+1 observations, the last one included; no images)."""
+    def trajectory(self, ep: int, images: bool = False) -> Trajectory:
+        """Episode ``ep`` as a :class:`Trajectory` (T+1 observations, the last one included).
+
+        ``images=True`` decodes the camera frames too (see :meth:`frames`); the dataset holds the image of each
+        s_0..s_{T-1}, so the image of s_T repeats the last one.
+        """
         columns = [*_TRANSITION_COLUMNS.values(), *_TRAJECTORY_EXTRA]
         self._require_features(columns)
         table = self._episode_table(int(ep), columns)
@@ -333,7 +337,33 @@ class DatasetReader:
         if table.num_rows != expected:
             raise DatasetError(f"episode {ep}: {table.num_rows} frames in {self._data_path(self._episode_row(ep))}, "
                                f"metadata says {expected}; run surrol_data.collect.recorder.repair(root)")
-        return self._trajectory_from(table)
+        traj = self._trajectory_from(table)
+        if images:
+            traj.images = {cam: np.concatenate([f, f[-1:]]) for cam, f in self.frames(ep).items()}
+        return traj
+
+    @property
+    def cameras(self) -> list[str]:
+        """Camera names (``observation.images.<name>`` video features), in feature order."""
+        return [k.removeprefix("observation.images.") for k, ft in self.features.items()
+                if ft["dtype"] == "video" and k.startswith("observation.images.")]
+
+    def frames(self, ep: int) -> dict[str, np.ndarray]:
+        """Episode ``ep``'s camera frames: name -> (T, H, W, 3) uint8, decoded from its segment of the video file."""
+        from surrol_data.datasets.video import decode_segment
+
+        row = self._episode_row(ep)
+        length = int(self.episodes["length"].iloc[row])
+        out = {}
+        for cam in self.cameras:
+            key = f"observation.images.{cam}"
+            value = {c: self._meta.column(f"videos/{key}/{c}")[row].as_py()
+                     for c in ("chunk_index", "file_index", "from_timestamp", "to_timestamp")}
+            path = self.root / self.info["video_path"].format(video_key=key, chunk_index=int(value["chunk_index"]),
+                                                             file_index=int(value["file_index"]))
+            out[cam] = decode_segment(path, float(value["from_timestamp"]), float(value["to_timestamp"]), self.fps,
+                                      length)
+        return out
 
     def trajectories(self, episodes: Iterable[int] | None = None) -> list[Trajectory]:
         """Trajectories of ``episodes`` (all if None), in the order given, each data file read once."""

@@ -20,6 +20,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 DEVICE_FLAGS = ("clutch", "jaw_button")
+# An env made with ``camera=True`` adds the endoscope view as ``obs["image"]``; episodes record it as this camera
+# (the dataset feature ``observation.images.endoscope``).
+ENV_CAMERA = "endoscope"
 
 
 @dataclass
@@ -68,6 +71,7 @@ class TrajectoryBuilder:
     """Accumulates one step at a time and returns a :class:`Trajectory`."""
 
     def __init__(self, obs: dict, tip_position: np.ndarray, jaw_angle: np.ndarray, image: dict | None = None):
+        obs, image = _split_image(obs, image)
         self._obs = {k: [np.asarray(v, np.float32)] for k, v in obs.items()}
         self._tip = [np.asarray(tip_position, np.float32).reshape(-1, 3)]
         self._jaw = [np.asarray(jaw_angle, np.float32).reshape(-1)]
@@ -80,6 +84,7 @@ class TrajectoryBuilder:
 
     def add(self, action, obs: dict, reward: float, success: bool, terminated: bool,
             tip_position, jaw_angle, flags: dict | None = None, image: dict | None = None) -> None:
+        obs, image = _split_image(obs, image)
         self._action.append(np.asarray(action, np.float32))
         for k, v in obs.items():
             self._obs[k].append(np.asarray(v, np.float32))
@@ -111,3 +116,11 @@ class TrajectoryBuilder:
             flags={k: np.asarray(v, bool) for k, v in self._flags.items()},
             images={k: np.stack(v) for k, v in self._images.items()},
         )
+
+
+def _split_image(obs: dict, image: dict | None) -> tuple[dict, dict | None]:
+    """The env's ``obs["image"]`` (camera=True) becomes the :data:`ENV_CAMERA` image, not a float observation."""
+    if "image" not in obs:
+        return obs, image
+    rest = {k: v for k, v in obs.items() if k != "image"}
+    return rest, {ENV_CAMERA: np.asarray(obs["image"], np.uint8), **(image or {})}
