@@ -48,7 +48,6 @@ DEMO_COLUMNS = (
     Column("failed_grasps", "Failed grasps", lambda v: f"{v:.2f}"),
     Column("jaw_closures", "Jaw closures", lambda v: f"{v:.2f}"),
     Column("clutch_uses", "Clutch", lambda v: f"{v:.1f}"),
-    Column("success_rate", "Kept of attempts", lambda v: f"{100 * v:.0f} %"),
 )
 
 
@@ -170,8 +169,7 @@ def demo_quality(sets: dict[str, Path]) -> list[dict]:
                      "path_length_cm": path_cm, "paper_path": paper_path, "matched": "yes" if within else "no",
                      "sparc": mean(ok, "sparc"), "log_dimensionless_jerk": mean(ok, "log_dimensionless_jerk"),
                      "idle_time_s": mean(ep, "idle_time_s"), "failed_grasps": mean(ep, "failed_grasps"),
-                     "jaw_closures": mean(ep, "jaw_closures"), "clutch_uses": mean(ep, "clutch_uses"),
-                     "success_rate": float(ep["success"].mean())})
+                     "jaw_closures": mean(ep, "jaw_closures"), "clutch_uses": mean(ep, "clutch_uses")})
     return rows
 
 

@@ -120,3 +120,43 @@ def test_table1_quick_pipeline_writes_the_report(tmp_path):
                                      "--override", "experiment.study.seeds=[0]"])
     assert again.exit_code == 0, again.output
     assert len(DatasetReader(out / "demos" / "NeedlePick_human").episodes) == 8
+
+
+def test_grasp_events_reach_the_dataset_and_the_metrics(tmp_path):
+    """The env's grasp state and drops go from the step info into the recorded frames, so failed grasps and drops
+    are counted from a dataset (not nan); a dataset recorded without them still reads, with those counts unknown."""
+    from surrol_data.collect.recorder import DatasetRecorder
+    from surrol_data.collect.script_source import features_for
+    from surrol_data.datasets.reader import DatasetReader
+    from surrol_data.datasets.schema import frame_features
+
+    env = gym.make("SurRoL/NeedlePick-v0", max_episode_steps=60)
+    try:
+        traj = rollout(env, ORACLE, 5)
+        features = features_for(env)
+    finally:
+        env.close()
+    assert traj.flags["grasped"].shape == (len(traj), 1) and traj.flags["grasped"].any()
+    assert traj.flags["drop"].shape == (len(traj),)
+    prov = {"source": "script", "device": "none", "skill": "scripted", "seed": 5}
+    with DatasetRecorder(tmp_path / "events", task="NeedlePick", env_id="SurRoL/NeedlePick-v0", task_description="t",
+                         features=features) as rec:
+        rec.record(traj, prov)
+    back = DatasetReader(tmp_path / "events").trajectory(0)
+    np.testing.assert_array_equal(back.flags["grasped"], traj.flags["grasped"])
+    np.testing.assert_array_equal(back.flags["drop"], traj.flags["drop"])
+    score = trajectory_proficiency(back)
+    assert score.failed_grasps == 0.0 and score.drops == 0.0 and score.jaw_closures >= 1
+
+    # a dataset without the event features (recorded before they existed) records and reads as before
+    plain = frame_features(obs_dim=19, goal_dim=3, act_dim=5, n_arms=1)
+    with DatasetRecorder(tmp_path / "plain", task="NeedlePick", env_id="SurRoL/NeedlePick-v0", task_description="t",
+                         features=plain) as rec:
+        rec.record(traj, prov)
+    old = DatasetReader(tmp_path / "plain").trajectory(0)
+    assert "grasped" not in old.flags and np.isnan(trajectory_proficiency(old).failed_grasps)
+    # and appending with an env that reports events keeps that dataset's features
+    with DatasetRecorder(tmp_path / "plain", task="NeedlePick", env_id="SurRoL/NeedlePick-v0", task_description="t",
+                         features=features, append=True) as rec:
+        rec.record(traj, {**prov, "seed": 6})
+    assert len(DatasetReader(tmp_path / "plain").episodes) == 2

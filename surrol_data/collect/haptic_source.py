@@ -327,7 +327,7 @@ class _Session:
             obs, reward, terminated, truncated, info = env.step(action)
             flags = {"clutch": any(s.clutch for s in steps), "jaw_button": any(s.jaw_button for s in steps)}
             builder.add(action, obs, reward, info["is_success"], terminated, info["tip_position"], info["jaw_angle"],
-                        flags=flags)
+                        flags=flags, info=info)
             if self.live:
                 self.live.step(k, obs, action, info, flags)
             if self.on_step is not None:

@@ -12,7 +12,7 @@ import numpy as np
 from tqdm import tqdm
 
 from surrol_data.collect.recorder import DatasetRecorder
-from surrol_data.datasets.schema import frame_features
+from surrol_data.datasets.schema import event_features, frame_features
 from surrol_data.envs import env_id as make_env_id
 from surrol_data.evaluation.rollout import ORACLE, rollout
 
@@ -33,8 +33,12 @@ class CollectResult:
 def features_for(env: gym.Env) -> dict:
     spaces = env.observation_space
     n_arms = env.action_space.shape[0] // 5
-    return frame_features(obs_dim=spaces["observation"].shape[0], goal_dim=spaces["desired_goal"].shape[0],
-                          act_dim=env.action_space.shape[0], n_arms=n_arms)
+    features = frame_features(obs_dim=spaces["observation"].shape[0], goal_dim=spaces["desired_goal"].shape[0],
+                              act_dim=env.action_space.shape[0], n_arms=n_arms)
+    task = env.unwrapped
+    if hasattr(task, "grasp") or hasattr(task, "grasps"):   # the env reports grasps and drops in its step info
+        features.update(event_features(n_arms))
+    return features
 
 
 def first_seed(out: str | Path, append: bool, seed: int | None, source: str) -> int:

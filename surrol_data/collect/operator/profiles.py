@@ -91,7 +91,8 @@ PROFILES: dict[str, OperatorParams] = {
 # (expert) and 117 (non-expert), mean tool-tip path 12.1 and 12.5 cm, on 100 NeedlePick episodes each. Our natural
 # expert is faster (≈ 70 steps) and our natural novice wanders further (≈ 16 cm), so a comparison on them would
 # measure demo length, not skill. The matched profiles are the same people working at the paper's pace: the
-# expert slower and more deliberate (comfortable speed, Fitts intercept, a longer look at the closing jaw), the
+# expert slower and more deliberate (comfortable speed, Fitts intercept, a longer look at the closing jaw, using
+# the whole workspace before re-centring the hand), the
 # novice with a path near the paper novices' (a better-aligned felt frame and gain, less endpoint scatter and
 # perception noise, the expert's accuracy reached with more corrections, a smaller height misjudgement, a shorter
 # back-off, a slower pace). Skill still shows where the paper's non-experts differed: tremor, hesitation (idle),
@@ -99,7 +100,8 @@ PROFILES: dict[str, OperatorParams] = {
 # Calibrated with ``benchmarks/demo_sources.py`` (100 episodes per source, 4 operators × 25).
 MATCHED_PROFILES: dict[str, OperatorParams] = {
     "expert_matched": dataclasses.replace(
-        PROFILES["expert"], speed_fraction=0.38, fitts_intercept_s=0.3, jaw_wait_s=1.0, frame_rotation_spread_deg=2.0),
+        PROFILES["expert"], speed_fraction=0.38, fitts_intercept_s=0.3, jaw_wait_s=1.0, frame_rotation_spread_deg=2.0,
+        clutch_margin_mm=3.0),
     "novice_matched": dataclasses.replace(
         PROFILES["novice"], frame_rotation_spread_deg=2.0, internal_gain_spread=0.04, endpoint_sd=0.06, drift_sd=0.03,
         weber_fraction=0.04, lateral_noise_mm=0.3, depth_noise_mm=0.5, accuracy_mm=0.6, max_corrections=6,
