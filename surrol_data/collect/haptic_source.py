@@ -78,7 +78,7 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
                    rerun_live: str | None = None, max_attempts: int | None = None, progress: bool = True,
                    command: str | None = None, library: str | Path | None = None,
                    realtime: bool | None = None, key_tracker=None, on_step=None,
-                   env_kwargs: dict | None = None) -> HapticResult:
+                   env_kwargs: dict | None = None, profile: str | None = None) -> HapticResult:
     """Record ``episodes`` kept teleoperated episodes of ``task`` into the dataset at ``out``.
 
     ``device``: a name of :data:`surrol_data.collect.devices.DEVICE_NAMES` (one device per arm is built with
@@ -91,12 +91,25 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
     for human devices only). ``key_tracker``: the key source of a host window (the training GUI) for keyboard
     devices and the session keys. ``on_step(env, step, obs, info, flags)``: called after every env step
     (``step`` counts from 1 in each attempt), e.g. to draw a frame. ``env_kwargs``: extra ``gym.make`` arguments.
+    ``profile``: the simulated operator's profile when not the skill's natural one, e.g. ``expert_matched`` (see
+    :data:`surrol_data.collect.operator.profiles.MATCHED_PROFILES`); its skill must be ``skill``.
     """
     if episodes <= 0:
         raise ValueError(f"the number of episodes must be positive, got {episodes}")
     if skill not in SKILLS:
         raise ValueError(f"--skill must be one of {', '.join(SKILLS)}, got {skill!r}")
     names = [device] if isinstance(device, str) else [d.name for d in device]
+    if profile is not None:
+        from surrol_data.collect.operator.profiles import ALL_PROFILES
+
+        if names != ["operator"]:
+            raise ValueError(f"--profile chooses a simulated operator's profile; it needs --device operator, not {names}")
+        if profile not in ALL_PROFILES:
+            raise ValueError(f"unknown operator profile {profile!r}; choose one of {sorted(ALL_PROFILES)}")
+        if skill == "unknown":
+            skill = ALL_PROFILES[profile].skill
+        if ALL_PROFILES[profile].skill != skill:
+            raise ValueError(f"profile {profile!r} is a {ALL_PROFILES[profile].skill} profile, but --skill is {skill!r}")
     if isinstance(device, str) and device == "operator" and skill == "unknown":
         raise ValueError("the simulated operator needs --skill expert or --skill novice")
     human = any(n in HUMAN_DEVICES for n in names)
@@ -118,7 +131,7 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
     try:
         return _Session(env, eid, episodes, out, device, names, operator_id, skill, sides, mapping, trace, seed,
                         horizon, keep_failures, append, gui, rerun_live, max_attempts or 3 * episodes, progress,
-                        command, library, realtime, key_tracker, on_step).run()
+                        command, library, realtime, key_tracker, on_step, profile).run()
     finally:
         env.close()
 
@@ -171,7 +184,7 @@ class _Session:
 
     def __init__(self, env, eid, episodes, out, device, names, operator_id, skill, sides, mapping, trace, seed,
                  horizon, keep_failures, append, gui, rerun_live, max_attempts, progress, command, library,
-                 realtime, key_tracker=None, on_step=None):
+                 realtime, key_tracker=None, on_step=None, profile=None):
         self.env, self.eid, self.episodes, self.out = env, eid, episodes, Path(out)
         self.task = eid.split("/")[1].rsplit("-v", 1)[0]
         self.operator_id, self.skill, self.seed, self.horizon = operator_id, skill, seed, horizon
@@ -200,7 +213,7 @@ class _Session:
                                                None) or self._key_tracker(names)
         if isinstance(device, str):
             self.devices = [open_device(device, arm=i, side=sides[i], env=env.unwrapped, mapping=self.mappings[i],
-                                        skill=skill, operator_id=operator_id, seed=seed, trace=trace,
+                                        skill=profile or skill, operator_id=operator_id, seed=seed, trace=trace,
                                         key_tracker=self.key_tracker, library=library)
                             for i in range(n_devices)]
         else:
@@ -340,7 +353,7 @@ class _Session:
             obs, reward, terminated, truncated, info = env.step(action)
             flags = {"clutch": any(s.clutch for s in steps), "jaw_button": any(s.jaw_button for s in steps)}
             builder.add(action, obs, reward, info["is_success"], terminated, info["tip_position"], info["jaw_angle"],
-                        flags=flags)
+                        flags=flags, info=info)
             if self.live:
                 self.live.step(k, obs, action, info, flags)
             if self.on_step is not None:

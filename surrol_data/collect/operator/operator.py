@@ -95,7 +95,8 @@ class SimulatedOperator(Device):
     """A simulated person operating arm ``arm`` of ``env`` (a PSM, or the ECM of a camera task) through a stylus
     (see the module docstring).
 
-    ``skill`` is a profile of :data:`PROFILES`; ``operator_id`` names the person (their parameters are drawn
+    ``skill`` is a profile of :data:`ALL_PROFILES` (``expert``, ``novice``, ``expert_matched``, ...);
+    ``operator_id`` names the person (their parameters are drawn
     from it); ``mapping`` is the device mapping the session uses (the operator's internal model inverts it);
     ``seed`` makes sessions reproducible. ``overrides`` replaces model parameters (e.g. to make a person who
     misjudges height by 3 mm).
@@ -123,7 +124,7 @@ class SimulatedOperator(Device):
         self.seed = int(seed)
         self.arm = arm
         self.params: OperatorParams = operator_params(skill, self.operator_id, overrides)
-        self._identity = identity_seed(skill, self.operator_id)
+        self._identity = identity_seed(self.params.skill, self.operator_id)
         self._connected = False
         self._clock = 0.0          # the device clock (s): frame timestamps, continuing across episodes
         self._episode_start = 0.0
