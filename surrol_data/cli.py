@@ -148,6 +148,10 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
                                                "with a display, for human devices)."),
             rerun_live: Optional[str] = typer.Option(None, help="haptic: stream to Rerun: 'spawn', a "
                                                      "rerun+http:// URL or an .rrd path."),
+            profile: Optional[str] = typer.Option(None, help="haptic operator: profile other than the skill's "
+                                                  "natural one, e.g. expert_matched (the paper's demo pace)."),
+            speed: float = typer.Option(1.0, min=0.01, max=1.0, help="script: the oracle's pace (0.3 matches the "
+                                        "paper's script demos at --max-steps 150)."),
             old_episodes: Optional[int] = _old_count_option()):
     """Record demonstrations into a LeRobot v3 dataset with per-episode provenance (and the endoscope video)."""
     command = shlex.join(["surrol-data", *sys.argv[1:]])
@@ -162,7 +166,8 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
             result = collect_haptic(task, episodes, out, device=device, operator_id=operator_id, skill=skill,
                                     sides=side or None, mapping=parse_mapping(mapping or []), trace=trace, seed=seed,
                                     max_steps=max_steps, keep_failures=keep_failures, append=append, gui=gui,
-                                    rerun_live=rerun_live, command=command, env_kwargs=camera_kwargs(size))
+                                    rerun_live=rerun_live, command=command, env_kwargs=camera_kwargs(size),
+                                    profile=profile)
         except (ValueError, FileExistsError, RuntimeError) as e:   # DeviceError is a RuntimeError
             _fail(str(e) if not isinstance(e, DeviceError) else f"device: {e}")
         console.print(f"recorded {result.kept} episodes ({result.attempts} attempts, success "
@@ -172,7 +177,7 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
 
     try:
         result = collect_script(task, episodes, out, seed=seed, max_steps=max_steps, keep_failures=keep_failures,
-                                append=append, command=command, camera_size=size)
+                                append=append, command=command, camera_size=size, speed=speed)
     except (ValueError, FileExistsError, RuntimeError) as e:
         _fail(str(e))
     console.print(f"recorded {result.kept} episodes ({result.attempts} attempts, oracle success "
@@ -249,15 +254,18 @@ def info(dataset: Path = typer.Argument(..., help="Dataset folder.")):
 
 @app.command("eval")
 def evaluate_cmd(task: str = typer.Option(..., help="Task name, e.g. NeedlePick."),
-                 policy: str = typer.Option("oracle", help="'oracle' or the path of a BC checkpoint (.pt)."),
+                 policy: str = typer.Option("oracle", help="'oracle', 'lerobot:DIR' (a policy trained by lerobot-train), "
+                                                           "the path of a BC checkpoint (.pt), or a run or sweep "
+                                                           "folder: every policy.pt under it."),
                  num_episodes: Optional[int] = typer.Option(None, min=1, help="Episodes to run (default 20)."),
                  seed: Optional[int] = typer.Option(None, help="Seed of the first episode; episode i uses seed + i "
                                                                "(default: 1,000,000,000, never a demo's seed)."),
                  max_steps: Optional[int] = typer.Option(None, min=1),
                  out: Optional[Path] = typer.Option(None, help="JSON file recording task, policy, seeds, summary "
-                                                                "and every episode's metrics."),
+                                                                "and every episode's metrics (a list for a folder)."),
                  old_episodes: Optional[int] = _old_count_option()):
-    """Run a policy for N seeded episodes (unseen seeds by default) and print its proficiency metrics."""
+    """Run a policy (or every run's policy under a folder) for N seeded episodes (unseen seeds by default) and
+    print the proficiency metrics."""
     import json
 
     episodes = _count(num_episodes, old_episodes, default=20)
@@ -267,15 +275,23 @@ def evaluate_cmd(task: str = typer.Option(..., help="Task name, e.g. NeedlePick.
     from surrol_data.evaluation.rollout import EVAL_SEED_BASE, evaluate
 
     first = EVAL_SEED_BASE if seed is None else seed
-    try:
-        result = evaluate(env_id(task), policy, episodes, seed=first, max_steps=max_steps)
-    except (ValueError, FileNotFoundError) as e:
-        _fail(str(e))
-    print_summary(console, {f"{policy} on {task}": result.summary})
+    folder = Path(policy) if policy != "oracle" and Path(policy).is_dir() else None
+    specs = sorted(str(p) for p in folder.rglob("policy.pt")) if folder else [policy]
+    if not specs:
+        _fail(f"{policy} holds no policy.pt: give a training run or sweep folder (runs/...), a checkpoint or 'oracle'")
+    records, summaries = [], {}
+    for spec in specs:
+        try:
+            result = evaluate(env_id(task), spec, episodes, seed=first, max_steps=max_steps)
+        except (ValueError, FileNotFoundError) as e:
+            _fail(str(e))
+        summaries[f"{spec} on {task}"] = result.summary
+        records.append(_nan_to_null(result.as_record(spec)))
+    print_summary(console, summaries)
     console.print(f"seeds {first}..{first + episodes - 1}")
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(_nan_to_null(result.as_record(policy)), indent=2, allow_nan=False))
+        out.write_text(json.dumps(records if folder else records[0], indent=2, allow_nan=False))
         console.print(f"wrote {out}")
 
 
@@ -330,6 +346,25 @@ def report(runs: list[Path] = typer.Argument(..., help="Training run folders, or
                                        demo_table_markdown=metrics_table_markdown(demo_rows, ASSESS_COLUMNS)
                                        if demo_rows else None)
     except (StudyReportError, DatasetError, ValueError, FileNotFoundError) as e:
+        _fail(str(e))
+    console.print(f"wrote {files['markdown']}, {files['html']} and {files['curves']}")
+
+
+@app.command()
+def study(experiment: str = typer.Argument(..., help="A study experiment config: table1 or table1_quick."),
+          out: Path = typer.Option(..., help="Folder for the demo sets, the runs and the report."),
+          natural: bool = typer.Option(False, help="Use the operators' natural pace instead of demo sets matched "
+                                                   "to the paper's."),
+          override: list[str] = typer.Option([], help="Hydra override for every run, e.g. algo=ddpgbc_warm "
+                                                      "(repeatable).")):
+    """The Table I study in one command: build the demo sets, train every run (one batched ensemble), report."""
+    from surrol_data.datasets.reader import DatasetError
+    from surrol_data.evaluation.study_report import StudyReportError
+    from surrol_data.study import run_study
+
+    try:
+        files = run_study(experiment, out, natural=natural, overrides=override, command=_this_command())
+    except (StudyReportError, DatasetError, ValueError, FileNotFoundError, RuntimeError) as e:
         _fail(str(e))
     console.print(f"wrote {files['markdown']}, {files['html']} and {files['curves']}")
 
@@ -654,6 +689,22 @@ def push(dataset: Path = typer.Argument(..., help="Dataset folder."),
     verb = "would upload" if dry_run else "uploaded"
     console.print(f"{verb} {len(plan.files)} files ({plan.bytes / 1e6:.2f} MB) to datasets/{repo_id}"
                   + (f", tag {plan.revision_tag}" if plan.revision_tag else ""))
+
+
+@app.command()
+def upgrade(dataset: Path = typer.Argument(..., help="Dataset folder written by an earlier surrol_data schema."),
+            keep_backup: bool = typer.Option(False, help="Keep the original beside it as DATASET.schema1.")):
+    """Rewrite a dataset in the current schema (environment state, next.truncated, named dimensions)."""
+    from surrol_data.datasets.reader import DatasetError
+    from surrol_data.datasets.upgrade import upgrade_dataset
+
+    try:
+        with console.status(f"upgrading {dataset}"):
+            report = upgrade_dataset(dataset, keep_backup=keep_backup)
+    except DatasetError as e:
+        _fail(str(e))
+    for line in report.lines():
+        console.print(line, highlight=False)
 
 
 if __name__ == "__main__":

@@ -84,10 +84,10 @@ def export_minari(src: str | Path, out: str | Path, *, dataset_id: str | None = 
     out.mkdir(parents=True, exist_ok=True)
 
     f = reader.features
-    box = lambda key: gym.spaces.Box(-np.inf, np.inf, shape=tuple(f[key]["shape"]), dtype=np.float32)  # noqa: E731
-    observation_space = gym.spaces.Dict({"observation": box("observation.state"),
-                                         "achieved_goal": box("observation.achieved_goal"),
-                                         "desired_goal": box("observation.desired_goal")})
+    box = lambda dim: gym.spaces.Box(-np.inf, np.inf, shape=(dim,), dtype=np.float32)  # noqa: E731
+    goal_dim = int(f["observation.environment_state"]["shape"][0]) // 2  # achieved goal, then desired goal
+    observation_space = gym.spaces.Dict({"observation": box(int(f["observation.state"]["shape"][0])),
+                                         "achieved_goal": box(goal_dim), "desired_goal": box(goal_dim)})
     action_space = gym.spaces.Box(-1.0, 1.0, shape=tuple(f["action"]["shape"]), dtype=np.float32)
 
     rows = reader.episodes.set_index("episode_index")

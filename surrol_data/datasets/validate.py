@@ -47,8 +47,11 @@ from surrol_data.datasets.schema import (
     PROVENANCE_PREFIX,
     SIDECAR_PATH,
     content_hash,
+    ENV_STATE,
+    NEXT_ENV_STATE,
     dims_from_features,
     frame_features,
+    split_environment_state,
 )
 
 REPAIR_HINT = "run `surrol-data repair DIR`"
@@ -62,8 +65,7 @@ _ARROW_TYPE_CHECK = {
 _LEROBOT_DEFAULT = ("timestamp", "frame_index", "episode_index", "index", "task_index")
 _TRACE_DIR = "meta/device_traces"
 _CHAINED = (("observation.state", "next.observation.state"),
-            ("observation.achieved_goal", "next.observation.achieved_goal"),
-            ("observation.desired_goal", "next.observation.desired_goal"),
+            (ENV_STATE, NEXT_ENV_STATE),
             ("complementary_info.tip_position", "complementary_info.next_tip_position"),
             ("complementary_info.jaw_angle", "complementary_info.next_jaw_angle"))
 
@@ -185,6 +187,12 @@ def _check_schema(info: dict) -> list[Problem]:
         elif got["dtype"] != want["dtype"] or tuple(got["shape"]) != tuple(want["shape"]):
             problems.append(Problem("schema", key, f"is {got['dtype']}{tuple(got['shape'])}, expected "
                                                    f"{want['dtype']}{tuple(want['shape'])}"))
+        elif want["dtype"] != "video" and (not isinstance(got.get("names"), list)
+                                           or len(got["names"]) != int(np.prod(got["shape"]))
+                                           or len(set(got["names"])) != len(got["names"])):
+            problems.append(Problem("schema", key, f"names {got.get('names')!r} do not name each of its "
+                                                   f"{int(np.prod(got['shape']))} dimensions once; run "
+                                                   "`surrol-data upgrade DIR`"))
     for key in ("timestamp", "frame_index", "episode_index", "index", "task_index"):
         if key not in features:
             problems.append(Problem("schema", key, "LeRobot bookkeeping feature missing from meta/info.json"))
@@ -670,7 +678,24 @@ def _check_values(info: dict, data: pa.Table) -> list[Problem]:
             rows = np.flatnonzero(differs)
             problems.append(Problem("values", f"column {nxt}", "differs from the next frame's " + now + " at " + _listed(
                 f"episode {episodes[r]} frame {frames[r]}" for r in rows) + "; s_{t+1} must be the next s_t"))
+    problems += _check_truncated(data, episodes, frames)
     return problems
+
+
+def _check_truncated(data: pa.Table, episodes: np.ndarray, frames: np.ndarray) -> list[Problem]:
+    """``next.truncated`` is true exactly on the last frame of an episode that ended without terminating."""
+    if "next.truncated" not in data.column_names or "next.done" not in data.column_names:
+        return []
+    truncated = column_to_numpy(data.column("next.truncated")).reshape(-1).astype(bool)
+    done = column_to_numpy(data.column("next.done")).reshape(-1).astype(bool)
+    last = np.append(episodes[1:] != episodes[:-1], True)
+    bad = np.flatnonzero(truncated != (last & ~done))
+    if not len(bad):
+        return []
+    return [Problem("values", "column next.truncated", "must be true only on the last frame of an episode that "
+                                                       "did not terminate (next.done false), at " + _listed(
+        f"episode {episodes[r]} frame {frames[r]} (stored {bool(truncated[r])})" for r in bad)
+                    + "; re-record the episode or rewrite the column")]
 
 
 def _check_reward(side: dict, meta: pa.Table, data: pa.Table) -> list[Problem]:
@@ -691,8 +716,8 @@ def _check_reward(side: dict, meta: pa.Table, data: pa.Table) -> list[Problem]:
         return [Problem("reward", f"env {env_id}", f"cannot be made ({type(e).__name__}: {e}); is the task "
                                                    "registered in surrol_data.envs?")]
     try:
-        achieved = column_to_numpy(data.column("next.observation.achieved_goal")).reshape(data.num_rows, -1)
-        desired = column_to_numpy(data.column("next.observation.desired_goal")).reshape(data.num_rows, -1)
+        environment = column_to_numpy(data.column(NEXT_ENV_STATE)).reshape(data.num_rows, -1)
+        achieved, desired = split_environment_state(environment)
         expected = np.asarray(env.unwrapped.compute_reward(achieved, desired, None), dtype=np.float32).reshape(-1)
     finally:
         env.close()
