@@ -12,8 +12,11 @@ The recorder needs four things lerobot 0.6 has no public API for (shared/docs/re
 * **fast saves**: :func:`install_fast_save` guards ``dataset_writer.embed_images``, a per-row map that only
   matters for ``image`` features.
 
-and the tools use ``compute_stats.aggregate_stats`` / ``io_utils.write_stats`` (repair, upgrade) and
-``feature_utils.get_hf_features_from_features`` (upgrade). :data:`CHECKED_VERSIONS` lists the lerobot
+and the tools use ``compute_stats.aggregate_stats`` / ``io_utils.write_stats`` (repair, upgrade),
+``feature_utils.get_hf_features_from_features`` (upgrade) and ``aggregate.aggregate_datasets`` /
+``io_utils.write_table_one_row_group_per_episode`` (merge; it also repairs two things 0.6.1's aggregation gets
+wrong for our datasets: the data files lose their fixed-size vector types, and the episodes-metadata rows of a
+source recorded in several files name files they are not in). :data:`CHECKED_VERSIONS` lists the lerobot
 releases these were read and tested against; on any other, :func:`check_lerobot` warns once
 (:class:`UntestedLerobotWarning`) and ``tests/test_lerobot_compat.py`` fails, naming what to re-check.
 Each patch also checks that what it touches is there and otherwise falls back to lerobot's public path
@@ -41,6 +44,10 @@ INTERNALS = (
     ("lerobot.datasets.io_utils", "write_stats"),
     ("lerobot.datasets.feature_utils", "get_hf_features_from_features"),
     ("lerobot.datasets.utils", "create_lerobot_dataset_card"),
+    # merge (surrol_data.datasets.merge): aggregate_datasets itself, and the writer that restores one row group per
+    # episode after its pandas rewrite of the data files
+    ("lerobot.datasets.aggregate", "aggregate_datasets"),
+    ("lerobot.datasets.io_utils", "write_table_one_row_group_per_episode"),
 )
 
 _warned = False
