@@ -32,7 +32,7 @@ def readme_blocks() -> list[list[str]]:
     for body in re.findall(r"```bash\n(.*?)```", text, flags=re.S):
         commands = []
         for line in body.replace("\\\n", " ").splitlines():
-            line = line.split("  #")[0].strip()
+            line = re.split(r"\s#", line)[0].strip()  # a comment starts at " #", however many spaces precede it
             if "surrol-data" in line and "pip install" not in line:
                 commands.append(line[line.index("surrol-data"):])
         if commands:
