@@ -186,7 +186,7 @@ def test_append_resumes_and_checks(written, LeRobotDataset, tmp_path):
 
     root = tmp_path / "needle"
     shutil.copytree(written[0], root)
-    with pytest.raises(FileExistsError, match="append=True"):
+    with pytest.raises(FileExistsError, match="--append"):
         DatasetRecorder(root, features=frame_features(OBS, GOAL, 5, 1), **RECORDER_ARGS)
     with pytest.raises(ValueError, match="observation.state: given float32\\(9,\\), dataset has float32\\(7,\\)"):
         DatasetRecorder(root, features=frame_features(9, GOAL, 5, 1), append=True, **RECORDER_ARGS)

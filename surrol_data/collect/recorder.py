@@ -95,7 +95,7 @@ from surrol_data.datasets.schema import (
     package_version,
     utc_now_iso,
 )
-from surrol_data.datasets.trajectory import DEVICE_FLAGS, Trajectory
+from surrol_data.datasets.trajectory import DEVICE_FLAGS, EVENT_FLAGS, Trajectory
 
 ROBOT_TYPE = "dvrk_psm"  # the default; collectors pass surrol_data.envs.names.dimension_names(env).robot_type
 VIDEO_BACKEND = "pyav"  # explicit: avoids torchcodec probing (and its 60-line warning without system ffmpeg)
@@ -182,7 +182,7 @@ class DatasetRecorder:
             shutil.rmtree(self.root)
             self._exists = False
         if self._exists and not append:
-            raise FileExistsError(f"{self.root} already exists: pass append=True to add episodes to it, "
+            raise FileExistsError(f"{self.root} already exists: add episodes to it with --append, "
                                   "or choose a new folder")
         if self._exists:
             if not (self.root / INFO_PATH).exists():
@@ -195,7 +195,8 @@ class DatasetRecorder:
             existing = json.loads((self.root / INFO_PATH).read_text())["features"]
             if features is not None:
                 ours = {k: v for k, v in existing.items() if k not in _LEROBOT_DEFAULT_FEATURES}
-                problems = _features_mismatch(features, ours)
+                optional = {f"complementary_info.{e}" for e in EVENT_FLAGS} - set(ours)
+                problems = _features_mismatch({k: v for k, v in features.items() if k not in optional}, ours)
                 if problems:
                     raise ValueError(f"cannot append to {self.root}: features differ — " + "; ".join(problems))
             sidecar = read_sidecar(self.root)
@@ -445,7 +446,7 @@ class DatasetRecorder:
         dg = vec("desired_goal", traj.desired_goal, T + 1, d["goal_dim"])
         tip = vec("tip_position", traj.tip_position, T + 1, 3 * d["n_arms"])
         jaw = vec("jaw_angle", traj.jaw_angle, T + 1, d["n_arms"])
-        extra = sorted(set(traj.flags) - set(DEVICE_FLAGS))
+        extra = sorted(set(traj.flags) - set(DEVICE_FLAGS) - set(EVENT_FLAGS))
         if extra:
             raise ValueError(f"Trajectory.flags {extra} are not in the dataset schema (only {list(DEVICE_FLAGS)})")
         environment = np.concatenate([ag, dg], axis=1)  # object/goal state: achieved goal, then desired goal
@@ -464,6 +465,14 @@ class DatasetRecorder:
         }
         for flag in DEVICE_FLAGS:
             frames[f"complementary_info.{flag}"] = vec(f"flags[{flag!r}]", traj.flags[flag], T, 1, bool)
+        for event in EVENT_FLAGS:   # optional features: recorded where the dataset has them
+            key = f"complementary_info.{event}"
+            if key not in self.features:
+                continue
+            if event not in traj.flags:
+                raise ValueError(f"{self.root} records env events but the trajectory has no {event!r} flags; build "
+                                 "it with TrajectoryBuilder.add(..., info=info) at every step")
+            frames[key] = vec(f"flags[{event!r}]", traj.flags[event], T, int(self.features[key]["shape"][0]), bool)
         cameras = d["cameras"]
         if set(traj.images) != set(cameras):
             raise ValueError(f"Trajectory.images has cameras {sorted(traj.images)}, the dataset has "

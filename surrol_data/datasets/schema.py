@@ -27,6 +27,8 @@ Mapping from a :class:`~surrol_data.datasets.trajectory.Trajectory` (T actions) 
 ``complementary_info.next_tip_position``,   the same after the action (row ``t+1``), so the
 ``complementary_info.next_jaw_angle``       proficiency metrics see the whole path
 ``complementary_info.clutch`` / ``jaw_button``  device flags ``flags[...][t]``
+``complementary_info.grasped`` / ``drop``   env events ``flags[...][t]`` (:func:`event_features`; datasets of
+                                            tasks with grasps, recorded since they were added)
 ``observation.images.<camera>`` (video)     ``images[camera][t]`` (the image of ``s_T`` is not stored)
 =========================================  =====================================================
 
@@ -199,6 +201,15 @@ def frame_features(obs_dim: int, goal_dim: int, act_dim: int, n_arms: int,
 def is_schema1(features: dict) -> bool:
     """Features written by the schema-1 recorder (goals under ``observation.*_goal``)."""
     return ENV_STATE not in features and "observation.desired_goal" in features
+
+
+def event_features(n_arms: int) -> dict[str, dict]:
+    """The per-frame env events (:data:`~surrol_data.datasets.trajectory.EVENT_FLAGS`) of tasks that grasp: added to
+    :func:`frame_features` by collectors whose env reports grasps. Optional: a dataset without them reads as
+    before, with failed grasps and drops unknown."""
+    arms = _arm_prefixes(n_arms)
+    return {"complementary_info.grasped": {"dtype": "bool", "shape": (n_arms,), "names": [p + "grasped" for p in arms]},
+            "complementary_info.drop": {"dtype": "bool", "shape": (1,), "names": ["drop"]}}
 
 
 def dims_from_features(features: dict) -> dict:

@@ -21,6 +21,7 @@ Each problem names the file / episode / column and says what to do.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -85,23 +86,29 @@ def _listed(items) -> str:
     return ", ".join(str(i) for i in items[:_MAX_LISTED]) + more
 
 
+STAGES = ("files", "provenance", "frames", "episodes", "statistics", "videos", "reward", "lerobot")
+
+
 def validate_dataset(root: str | Path, *, check_reward: bool = True, check_lerobot: bool = True,
-                     check_videos: bool = True) -> list[Problem]:
+                     check_videos: bool = True, progress: Callable[[str], None] | None = None) -> list[Problem]:
     """All problems found in the dataset at ``root`` (empty list: it is valid). See the module docstring.
 
+    ``progress`` is called with the name of each stage of :data:`STAGES` as it starts (for a progress bar).
     Never raises on a damaged dataset: a check that fails unexpectedly is itself reported as a problem.
     """
     root = Path(root)
     try:
-        return _validate(root, check_reward, check_lerobot, check_videos)
+        return _validate(root, check_reward, check_lerobot, check_videos, progress or (lambda stage: None))
     except Exception as e:  # noqa: BLE001 - the promise is a list of problems, never a traceback
         return [Problem("internal", str(root), f"validation stopped on {type(e).__name__}: {e}; the dataset is "
                                                f"damaged in a way no check names yet: try `surrol-data repair "
                                                f"{root}`")]
 
 
-def _validate(root: Path, check_reward: bool, check_lerobot: bool, check_videos: bool) -> list[Problem]:
+def _validate(root: Path, check_reward: bool, check_lerobot: bool, check_videos: bool,
+              stage: Callable[[str], None]) -> list[Problem]:
     problems: list[Problem] = []
+    stage("files")
     try:
         info = load_info(root)
     except DatasetError as e:
@@ -123,6 +130,7 @@ def _validate(root: Path, check_reward: bool, check_lerobot: bool, check_videos:
     schema_problems = _check_schema(info)
     if schema_problems:
         return problems + schema_problems
+    stage("provenance")
     meta_tables = []
     for path in parquet_files(root, EPISODES_DIR):
         table = pq.read_table(path)
@@ -133,6 +141,7 @@ def _validate(root: Path, check_reward: bool, check_lerobot: bool, check_videos:
     column_problems = _check_columns(root, info)
     if column_problems:
         return problems + column_problems
+    stage("frames")
     data = _read_data(root, info)
     problems += _check_tasks(root, info, meta, data)
     count_problems = _check_counts(info, meta, data)
@@ -141,17 +150,22 @@ def _validate(root: Path, check_reward: bool, check_lerobot: bool, check_videos:
         return problems  # frame checks would only repeat the mismatch
     problems += _check_locations(root, info, meta, data)
     problems += _check_values(info, data)
+    stage("episodes")
     if not any(p.where.endswith("content_hash") and "missing" in p.message for p in problems):
         problems += _check_episodes(info, meta, data)
+    stage("statistics")
     problems += _check_stats(root, info, meta_full, data)
     side = read_sidecar(root)
     problems += _check_sidecar(root, side, meta)
     problems += _check_traces(root, meta, data)
     if check_videos:
+        stage("videos")
         problems += _check_videos(root, info, meta_full)
     if check_reward:
+        stage("reward")
         problems += _check_reward(side, meta, data)
     if check_lerobot:
+        stage("lerobot")
         problems += _check_lerobot(root, info)
     return problems
 

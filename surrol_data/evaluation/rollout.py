@@ -64,7 +64,8 @@ def rollout(env: gym.Env, policy: Policy | str, seed: int, max_steps: int | None
         # Record exactly what the env executes: the env clips too, but the trajectory must hold the clipped value.
         action = np.clip(action, space.low, space.high)
         obs, reward, terminated, truncated, info = env.step(action)
-        builder.add(action, obs, reward, info["is_success"], terminated, info["tip_position"], info["jaw_angle"])
+        builder.add(action, obs, reward, info["is_success"], terminated, info["tip_position"], info["jaw_angle"],
+                    info=info)
         if terminated or truncated:
             break
     return builder.build()
