@@ -134,3 +134,13 @@ def test_lerobot_eval_plugin_gives_the_dataset_keys():
         assert "is_success" in info  # what lerobot-eval counts
     finally:
         vec.close()
+
+    camera = SurrolEnv(task="NeedlePick", camera_width=32, camera_height=24)
+    assert tuple(env_to_policy_features(camera)["observation.images.endoscope"].shape) == (3, 24, 32)
+    vec = camera.create_envs(n_envs=1)["surrol"][0]
+    try:
+        obs, _ = vec.reset(seed=[5])
+        image = preprocess_observation(obs)["observation.images.endoscope"]
+        assert image.shape == (1, 3, 24, 32) and 0.0 <= float(image.min()) <= float(image.max()) <= 1.0
+    finally:
+        vec.close()
