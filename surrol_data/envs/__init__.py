@@ -21,8 +21,8 @@ TASKS = {
     "MatchBoardPanel": "surrol_data.envs.tasks.match_board_panel:MatchBoardPanel",
 }
 # Multi-step tasks get longer horizons, sized for people: haptic collection allows 3× the registered horizon, and
-# simulated novices need up to ~430 steps for PickAndPlace (two jacks) or MatchBoardPanel (drawer, then block)
-# and ~180 for MatchBoard (the oracle: 48, 57 and 35).
+# simulated novices take 406 ± 65 steps on PickAndPlace (two jacks), 362 ± 68 on MatchBoardPanel (drawer, then
+# block) and 183 ± 22 on MatchBoard (benchmarks/operator_tasks.py; the oracle: 50, 59 and 35).
 LONG_HORIZONS = {"ActiveTrack": 500, "PickAndPlace": 200, "MatchBoard": 100, "MatchBoardPanel": 200}
 DEFAULT_MAX_EPISODE_STEPS = {name: LONG_HORIZONS.get(name, 50) for name in TASKS}
 
