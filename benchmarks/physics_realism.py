@@ -33,7 +33,7 @@ from rich.progress import Progress
 from rich.table import Table
 
 import surrol_data.envs  # noqa: F401  (registers the ids)
-from surrol_data.envs import drawer, env_id, jacks, match_board, objects, peg_board, physics
+from surrol_data.envs import drawer, env_id, jacks, match_board, objects, peg_board, ring_board
 from surrol_data.envs.psm import JAW_JOINTS
 from surrol_data.envs import kinematics as kin
 from surrol_data.envs.psm_env import WORKSPACE, WORKSPACE_MARGIN
@@ -43,16 +43,18 @@ from surrol_data.envs.tasks.pick_and_place import PickAndPlace
 from surrol_data.envs.units import ACTION_POSITION_M, SCALING
 
 TASKS = ["NeedleReach", "GauzeRetrieve", "NeedlePick", "PegTransfer", "NeedleRegrasp", "BiPegTransfer",
-         "PickAndPlace", "MatchBoard", "MatchBoardPanel"]
+         "PickAndPlace", "MatchBoard", "MatchBoardPanel", "PegBoard", "NeedleRings"]
 POLICIES = ["random", "bang-bang", "oracle"]
 SCENARIOS = ["poke", "swipe", "drop", "tracking"]
 GRASPING_TASKS = ["GauzeRetrieve", "NeedlePick", "PegTransfer"]      # poke/swipe targets (single arm, jaw free)
 DROP_TASKS = ["GauzeRetrieve", "NeedlePick", "PegTransfer"]          # gauze→tray floor, needle→pad, block→board
 INSIDE_TOLERANCE_M = 0.001
+_PLACE_ABOVE_M = 0.1   # drop tests: where an object is first put to measure how far its lowest point hangs down
 OVERLAP_CLASSES = ("tool-static", "tool-object", "object-static", "object-object")
 # Blade geometry (jaw link frame, metres) for the independent between-the-blades check: each blade's inner face
 # is its link's x = 0 plane; the blade runs 10.2 mm along +y.
 _BLADE_LENGTH_M, _FACE_TOL_M = 0.0102, 0.0003
+_MIN_OPENING_RAD = np.deg2rad(2.0)   # blade 7 minus blade 6 (the jaw angle); a closed jaw reads 0 ± 1°
 
 
 @dataclass
@@ -139,14 +141,13 @@ class Probe:
 
 
 def has_collision_shape(c, body: int) -> bool:
-    # A multibody may keep its shapes on its links only (the panel's drawer: a shapeless base at the cabinet).
+    """A body without a collision shape (goal marker, endoscope) has a bounding box of zero size; a multibody may
+    keep its shapes on its links only (the panel's drawer: a shapeless base at the cabinet).
+    (``getCollisionShapeData`` cannot tell: it fails on maximal-coordinate bodies such as the needle.)"""
     for link in range(-1, c.getNumJoints(body)):
-        try:
-            with physics._stdout_silenced(fds=(1, 2)):   # PyBullet prints a warning before it raises
-                if c.getCollisionShapeData(body, link):
-                    return True
-        except Exception:   # PyBullet raises for bodies without any shape (e.g. the endoscope's)
-            continue
+        lo, hi = c.getAABB(body, link)
+        if any(h > l for l, h in zip(lo, hi)):
+            return True
     return False
 
 
@@ -165,7 +166,11 @@ def between_blades(c, body: int, obj: int) -> bool:
     """Independent geometric check: does the object touch both blades on their inner faces, within the blades?
 
     A touch counts when the contact normal (object → blade) points across the closing gap, within 45° of the
-    blade's inner-face normal, at a point along the blade's length (not beyond its end)."""
+    blade's inner-face normal, at a point along the blade's length (not beyond its end); and the blades must be
+    apart (a closed jaw has nothing between them)."""
+    q = [s[0] for s in c.getJointStates(body, JAW_JOINTS)]
+    if q[1] - q[0] < _MIN_OPENING_RAD:
+        return False
     for j, towards_other in zip(JAW_JOINTS, (-1.0, 1.0)):
         link = c.getLinkState(body, j, computeForwardKinematics=True)
         inv_p, inv_q = c.invertTransform(link[4], link[5])
@@ -209,7 +214,10 @@ def support_z(task: str, xy: np.ndarray) -> float:
         d = xy - MatchBoardPanel.CABINET_CENTRE[:2]
         over = abs(d[0]) < 0.036 and -0.02 - drawer.TRAVEL < d[1] < 0.021
         return objects.TABLE_TOP_Z + drawer.FLOOR_TOP if over else objects.TABLE_TOP_Z
-    return objects.TABLE_TOP_Z   # NeedleRegrasp: the needle is held in the air; the table is what it falls to
+    if task == "PegBoard":
+        on_board = np.all(np.abs(xy - ring_board.BOARD_CENTRE_XY) < ring_board.BOARD_HALF_EXTENTS[:2])
+        return ring_board.BOARD_TOP_Z if on_board else objects.TABLE_TOP_Z
+    return objects.TABLE_TOP_Z   # NeedleRegrasp, NeedleRings: the needle is held in the air; the table is what it falls to
 
 
 def check_end(task: str, probe: Probe, res: Result) -> None:
@@ -246,16 +254,30 @@ def timed_step(env, action, res: Result, probe: Probe, jaw_closing: list[bool]):
     return obs, info, terminated or truncated
 
 
+def probed_episodes(env, task: str, res: Result, seeds, check: bool = True):
+    """For each seed: reset, attach a fresh probe, yield ``(seed, obs, probe)`` for the caller to act; afterwards
+    (``check``) count what the episode left below, outside or inside, and keep its deepest overlaps."""
+    u = env.unwrapped
+    for seed in seeds:
+        obs, _ = env.reset(seed=seed)
+        probe = Probe()
+        probe.attach(u)
+        yield seed, obs, probe
+        if check:
+            check_end(task, probe, res)
+        res.merge_overlaps(probe)
+        probe.detach(u)
+        res.episodes += 1
+    env.close()
+
+
 def run_policy(task: str, policy: str, episodes: int) -> Result:
     env = gym.make(env_id(task))
     u = env.unwrapped
     res = Result(task, policy)
     dim = env.action_space.shape[0]
-    for seed in range(episodes):
+    for seed, obs, probe in probed_episodes(env, task, res, range(episodes)):
         rng = np.random.default_rng(1000 + seed)
-        obs, _ = env.reset(seed=seed)
-        probe = Probe()
-        probe.attach(u)
         done, hold, action = False, 0, np.zeros(dim)
         info = {}
         while not done:
@@ -269,11 +291,6 @@ def run_policy(task: str, policy: str, episodes: int) -> Result:
             closing = [a < 0 for a in np.asarray(action).reshape(-1, 5)[:, 4]]
             obs, info, done = timed_step(env, action, res, probe, closing)
         res.successes += int(info.get("is_success", 0.0) > 0)
-        check_end(task, probe, res)
-        res.merge_overlaps(probe)
-        probe.detach(u)
-        res.episodes += 1
-    env.close()
     return res
 
 
@@ -307,10 +324,7 @@ def run_poke_swipe(task: str, kind: str, episodes: int) -> Result:
     env = gym.make(env_id(task))
     u = env.unwrapped
     res = Result(task, kind)
-    for seed in range(episodes):
-        env.reset(seed=seed)
-        probe = Probe()
-        probe.attach(u)
+    for seed, _, probe in probed_episodes(env, task, res, range(episodes)):
         point, opening = object_point(u, task)
         yaw = float(np.arctan2(opening[1], opening[0]))
         side = np.array([-np.sin(yaw), np.cos(yaw), 0.0])     # along the blades' width: no blade faces the object
@@ -329,12 +343,16 @@ def run_poke_swipe(task: str, kind: str, episodes: int) -> Result:
                 timed_step(env, np.array([*(-direction[:2]), 0.0, 0, -1.0]), res, probe, [True])
             for _ in range(3):
                 timed_step(env, np.array([0, 0, 1.0, 0, -1.0]), res, probe, [True])
-        check_end(task, probe, res)
-        res.merge_overlaps(probe)
-        probe.detach(u)
-        res.episodes += 1
-    env.close()
     return res
+
+
+def gap_to_surface(c, obj: int, statics: list[int], surface: float) -> float:
+    """Height (real metres) of ``obj``'s lowest point above the horizontal support surface at ``surface``."""
+    gaps = [p[8] / SCALING for s in statics for p in c.getClosestPoints(obj, s, 2 * _PLACE_ABOVE_M * SCALING)
+            if abs(p[6][2] / SCALING - surface) < 1e-4]
+    if not gaps:
+        raise RuntimeError("drop test: no support surface found below the object")
+    return min(gaps)
 
 
 def run_drops(task: str, episodes: int) -> Result:
@@ -344,29 +362,23 @@ def run_drops(task: str, episodes: int) -> Result:
     res = Result(task, "drop")
     heights = np.linspace(0.0, 0.06, 7)
     c = u.client
-    for seed in range(episodes):
+    for seed, _, probe in probed_episodes(env, task, res, range(episodes)):
         rng = np.random.default_rng(seed)
-        env.reset(seed=seed)
-        probe = Probe()
-        probe.attach(u)
         pos = np.asarray(c.getBasePositionAndOrientation(u.object_id)[0]) / SCALING
         h = heights[seed % len(heights)]
         if task == "PegTransfer":   # between the pegs of the two clusters, well clear of every peg
             pos = peg_board.BOARD_ORIGIN + np.array([0.035, rng.uniform(-0.01, 0.01), 0.0])
-            pos[2] = support_z(task, pos[:2]) + 0.0092
-        else:
-            pos[2] = support_z(task, pos[:2]) + 0.003
+        surface = support_z(task, pos[:2])
         quat = c.getQuaternionFromEuler(rng.uniform(-np.pi, np.pi, 3) if seed % 2 else [0, 0, rng.uniform(-3, 3)])
-        c.resetBasePositionAndOrientation(u.object_id, ((pos + [0, 0, h]) * SCALING).tolist(), quat)
+        # The drop height is that of the object's lowest point: place it well above, measure the gap, lower it.
+        pos[2] = surface + _PLACE_ABOVE_M
+        c.resetBasePositionAndOrientation(u.object_id, (pos * SCALING).tolist(), quat)
+        pos[2] += h - gap_to_surface(c, u.object_id, probe.static, surface)
+        c.resetBasePositionAndOrientation(u.object_id, (pos * SCALING).tolist(), quat)
         c.resetBaseVelocity(u.object_id, [0, 0, 0], [0, 0, 0])
         c.changeDynamics(u.object_id, -1, activationState=c.ACTIVATION_STATE_WAKE_UP)
         for _ in range(12):
             timed_step(env, np.array([0, 0, 0, 0, 1.0]), res, probe, [False])
-        check_end(task, probe, res)
-        res.merge_overlaps(probe)
-        probe.detach(u)
-        res.episodes += 1
-    env.close()
     return res
 
 
@@ -382,12 +394,10 @@ def run_tracking(task: str, episodes: int) -> Result:
     actions = corners + [rng.uniform(-1, 1, 3) for _ in range(max(episodes - len(corners), 4))]
     bimanual = hasattr(u, "psms")
     worst = 0.0
-    for i, a in enumerate(actions):
+    for i, _, probe in probed_episodes(env, task, res, range(len(actions)), check=False):
+        a = actions[i]
         arm = i % 2 if bimanual else 0
         psm = u.psms[arm] if bimanual else u.psm
-        env.reset(seed=i)
-        probe = Probe()
-        probe.attach(u)
         ws = u.WORKSPACES[arm] if bimanual else WORKSPACE
         start = np.array([ws[0].mean(), ws[1].mean(), ws[2, 1] - 0.015])
         held = bimanual and u.HELD_AT_START == arm
@@ -420,11 +430,7 @@ def run_tracking(task: str, episodes: int) -> Result:
             if clipped or not reachable.within_limits or touched:
                 continue
             worst = max(worst, float(np.linalg.norm(tip() - tip0 - want) / np.linalg.norm(want)))
-        res.merge_overlaps(probe)
-        probe.detach(u)
-        res.episodes += 1
     res.tracking_error = worst
-    env.close()
     return res
 
 

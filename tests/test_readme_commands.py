@@ -7,6 +7,7 @@ here; its composed config is still checked with ``--cfg job``).
 
 from __future__ import annotations
 
+import itertools
 import os
 import re
 import shlex
@@ -18,7 +19,10 @@ from pathlib import Path
 import pytest
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
-CAP = {"collect": 20, "eval": 5}  # --episodes at most (20 keeps `split --valid-fraction 0.1` meaningful)
+CAP = {"collect": 20, "eval": 5}  # --num-episodes at most (20 keeps `split --valid-fraction 0.1` meaningful)
+
+
+_OUTPUTS = itertools.count()
 
 
 def readme_blocks() -> list[list[str]]:
@@ -44,9 +48,9 @@ def adapt(command: str, home: Path) -> list[str] | None:
     if args[1] == "train" and "--cfg" not in args:
         args.append("experiment=smoke")
     if args[1] == "demo":
-        args += ["--out", "demo_out", "--episodes", "3", "--eval-episodes", "2"]
+        args += ["--out", "demo_out", "--num-episodes", "3", "--eval-episodes", "2"]
     for i, arg in enumerate(args[:-1]):
-        if arg == "--episodes" and args[1] in CAP:
+        if arg in ("--num-episodes", "--episodes") and args[1] in CAP:
             args[i + 1] = str(min(int(args[i + 1]), CAP[args[1]]))
     filled = []
     for arg in args:
@@ -56,8 +60,8 @@ def adapt(command: str, home: Path) -> list[str] | None:
             filled.append({"DIR1": "datasets/NeedlePick_script", "DIR2": "datasets/NeedlePick_human"}[arg])
         elif arg == "...":
             continue
-        elif arg == "OUT":
-            filled.append(f"out_{args[1]}")
+        elif arg == "OUT":  # numbered: the README may write with one command twice (e.g. two filter examples)
+            filled.append(f"out_{args[1]}_{next(_OUTPUTS)}")
         else:
             filled.append(arg)
     return filled

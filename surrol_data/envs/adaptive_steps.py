@@ -20,6 +20,7 @@ from surrol_data.envs.physics import pb
 from surrol_data.envs.units import SCALING
 
 _GRAVITY = abs(physics.GRAVITY[2])
+_base_velocity = pb.getBaseVelocity
 # Tool links whose sweep matters (wrist pitch link, both jaws).
 _TOOL_LINKS = (4, 6, 7)
 
@@ -33,16 +34,21 @@ class SubstepPlanner:
         self.dynamic_bodies = dynamic_bodies
         self._cid = client._client
         self._tool_k = 1
+        self._bodies: list[int] = []
         self.refined_steps = 0     # coarse steps that were split (for benchmarks)
 
     def plan_tools(self, dt: float) -> None:
         """Once per control period, before its physics steps: the refinement the tools' moves need. Their speed
         during the period is set by the ramped joint targets (known now), so one test per period suffices."""
         self._tool_k = self._k(self._tool_travel(dt), physics.MAX_TRAVEL_PER_STEP_M)
+        self._bodies = self.dynamic_bodies()
 
     def refinement(self, dt: float) -> int:
         """How many fine steps the next coarse step of ``dt`` seconds needs (1 = none)."""
-        k = max(self._tool_k, self._k(self._object_travel(dt), physics.MAX_OBJECT_TRAVEL_PER_STEP_M))
+        k = self._tool_k
+        travel = self._object_travel(dt)
+        if travel:
+            k = max(k, self._k(travel, physics.MAX_OBJECT_TRAVEL_PER_STEP_M))
         if k > 1:
             self.refined_steps += 1
         return k
@@ -54,19 +60,17 @@ class SubstepPlanner:
     def _object_travel(self, dt: float) -> float:
         """Travel of the fastest object that could hit something other than a tool (tool hits are the tools')."""
         worst = 0.0
-        tools = None
-        for body in self.dynamic_bodies():
-            v = pb.getBaseVelocity(body, physicsClientId=self._cid)[0]
-            if v == (0.0, 0.0, 0.0):   # asleep, or at rest
+        limit = physics.MAX_OBJECT_TRAVEL_PER_STEP_M * SCALING / dt   # scaled speed below which nothing matters
+        fall = _GRAVITY * dt
+        for body in self._bodies:
+            v = _base_velocity(body, physicsClientId=self._cid)[0]
+            speed = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) + (fall if v[2] < -fall else 0.0)
+            # (Falling objects speed up within the step by what gravity gives them meanwhile.)
+            if speed <= limit:
                 continue
-            speed = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-            if v[2] < -_GRAVITY * dt:   # falling: it speeds up within the step by what gravity gives meanwhile
-                speed += _GRAVITY * dt
             travel = speed / SCALING * dt
-            if travel <= max(worst, physics.MAX_OBJECT_TRAVEL_PER_STEP_M):
-                continue
-            tools = tools or {g.psm.body for g in self.grasps}
-            if self._near_other_body(body, (-1,), travel * SCALING, ignore=tools):
+            if travel > worst and self._near_other_body(body, (-1,), travel * SCALING,
+                                                        ignore={g.psm.body for g in self.grasps}):
                 worst = travel
         return worst
 

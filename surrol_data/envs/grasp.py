@@ -3,7 +3,8 @@
 1. **Squeeze.** While the jaw closes, the blades collide with the object and stop on it, so the jaw angle
    reads the object's width.
 2. **Grip.** Once both blades touch the object *on their inner faces* (contact normal across the closing gap,
-   contact point along the blade, not past its end), the object is fixed to the wrist at the pose it has in
+   contact point along the blade, not past its end) with the jaw still open by more than the thinnest object
+   leaves it, the object is fixed to the wrist at the pose it has in
    the hand by a constraint as strong as the squeeze's friction (``physics.GRASP_FRICTION_FORCE``). A closed
    jaw poked onto an object or swiped into it touches it with a blade's end or outer face and never grips.
 3. **Weld.** Once the task's lift condition holds (the reference's ``_meet_contact_constraint_requirement``:
@@ -58,8 +59,9 @@ class Grasp:
         return self.constraint is not None
 
     def between_blades(self) -> bool:
-        """Both blades touch the object on their inner faces, within the blade length."""
-        if self.object_id < 0:
+        """Both blades touch the object on their inner faces, within the blade length, and the jaw is open
+        (``physics.GRASP_MIN_OPENING_RAD``)."""
+        if self.object_id < 0 or self.psm.jaw_angle() < physics.GRASP_MIN_OPENING_RAD:
             return False
         return all(self._inner_face_touch(j, towards) for j, towards in zip(JAW_JOINTS, _TOWARDS_OTHER))
 

@@ -3,8 +3,15 @@
 The original SurRoL integrates one 0.2 s control period with 48 sub-steps of 1/240 s and 50 solver
 iterations. Our scene uses primitive collision shapes (boxes, capsules) instead of VHACD meshes and a
 coarser integration (``SUBSTEPS`` per control period), which keeps contacts stable at this scale
-(the PSM scene is 5× real size) while making a step ~20× cheaper; the benchmark in
-``benchmarks/env_throughput.py`` and the oracle tests watch both sides of that trade.
+(the PSM scene is 5× real size) while making a step ~20× cheaper. Where the coarse step is not enough —
+something fast about to hit something — it is refined locally (adaptive_steps.py) instead of everywhere.
+Every value below says which measurement chose it; ``benchmarks/physics_realism.py`` (overlaps, tunnelling,
+grasps, slip, tracking, measured at every physics step) and ``benchmarks/env_throughput.py`` (speed) watch
+both sides of the trade, and tests/test_physics_realism.py keeps them true.
+
+Measured and rejected (benchmarks/physics_realism.py, 4-episode probes): 24 instead of 12 sub-steps halved
+the speed and left a closed jaw pushed into the pad at 1.2 mm (the arm's motor force, not the step, was
+the cause there); 60 solver iterations and 10× lower arm motor forces changed the overlaps by < 20 %.
 """
 
 from __future__ import annotations
@@ -37,6 +44,10 @@ PSM_MAX_FORCE = (60.0, 60.0, 60.0, 10.0, 10.0, 10.0)          # N·m / N (scaled
 # error, benchmarks/physics_realism.py "tracking"); at (1.0, 1.0, 0.2) every unit-box action is tracked within
 # ~1 %. Faster moves into contact are what the adaptive sub-steps below are for.
 PSM_MAX_VELOCITY = (1.0, 1.0, 0.2, 3.0, 3.0, 3.0)            # rad/s, m/s (real)
+# Jaw squeeze. The blades stop on the object at first touch (the grasp grips at that physics step and holds the
+# jaw there), so the squeeze force only matters while closing: 4 (the old value) pried a blade 1 mm into a
+# needle before the grip; at 0.01–0.1 a closed jaw pushed onto a block wall was pried open by the wall; 1.0
+# keeps both under the benchmark's limits.
 JAW_MAX_FORCE = 1.0
 # Link inertia (scaled scene). Links whose inertia about their joint is near zero make the articulated
 # solver ill-conditioned: contacts then swing the jaws and wrist far from their targets.
@@ -75,11 +86,19 @@ FLOOR_COLLISION_DEPTH_M = 0.01
 # Contact and grasp.
 JAW_FRICTION = 1.0
 OBJECT_FRICTION = 1.0
-GRASP_CONTACT_DISTANCE_M = 0.0002   # a jaw within this distance of the object "touches" it (real metres)
+# A blade within this distance of the object touches it (real metres). 0.8 mm (the old value) clamped the
+# jaw at 15° on a 1.24 mm needle wire (the blades had not reached it); 0.2 mm reads ~9° (the wire's width).
+GRASP_CONTACT_DISTANCE_M = 0.0002
 BLADE_LENGTH_M = 0.0102             # jaw blade length (the reference's jaw collision box)
-GRASP_MAX_FORCE = 20.0
+GRASP_MAX_FORCE = 20.0              # the weld's force limit (reference: maxForce 20)
+# The grip before the task's lift condition holds stands in for the squeezing jaws' friction: 2.0 let the
+# 50 g gauze slide 1.6 mm in the hand while the oracle lifted it; 5.0 (~10× its weight) holds it within 0.1 mm.
 GRASP_FRICTION_FORCE = 5.0
-GRASP_MAX_SLIP_M = 0.002            # a held object this far from where it was welded is dropped
+# Nothing lies between the blades of a closed jaw. The thinnest thing held, the 1.24 mm needle wire, keeps the
+# jaw at least 2·asin(0.62/10.2) ≈ 7° open; a closed jaw reads 0 ± 1°. Below this opening the blades' inner
+# faces may both touch an object only from inside it (a closed jaw pushed 3 mm into a block wall "gripped" it).
+GRASP_MIN_OPENING_RAD = float(np.deg2rad(3.0))
+GRASP_MAX_SLIP_M = 0.002            # a held object this far from where it was gripped is dropped (the issue's 2 mm)
 
 
 def scaled_velocity_limits() -> np.ndarray:

@@ -6,7 +6,7 @@ the remote centre of motion is realised by the kinematic chain itself (yaw/pitch
 insertion through it), as on the real robot.
 
 Link indices: 0 outer yaw, 1 outer pitch, 2 insertion, 3 tool roll, 4 wrist pitch, 5 wrist yaw (EEF),
-6/7 jaws, 8 tool tip (fixed). Only the wrist and the jaws collide.
+6/7 jaws, 8 tool tip (fixed). The shaft (on the tool-roll link), the wrist and the jaws collide.
 """
 
 from __future__ import annotations
@@ -16,6 +16,7 @@ from surrol_data.envs.physics import pb  # physics imports pybullet quietly
 
 from surrol_data.envs import kinematics as kin
 from surrol_data.envs import physics
+from surrol_data.envs.shapes import convex_box
 from surrol_data.envs.units import SCALING
 
 ARM_JOINTS = (0, 1, 2, 3, 4, 5)
@@ -26,6 +27,8 @@ EEF_LINK = 5
 _JAW_SIGNS = (-1.0, +1.0)
 
 _SHAFT_COLOUR = (0.55, 0.55, 0.6, 1.0)
+_SHAFT_RADIUS_M = 0.004
+_SHAFT_COLLISION_LENGTH_M = 0.06
 _WRIST_COLOUR = (0.3, 0.3, 0.35, 1.0)
 _JAW_COLOUR = (0.2, 0.2, 0.22, 1.0)
 
@@ -108,6 +111,15 @@ class Psm:
         vis_shape = c.createVisualShape if self.visual else (lambda *a, **k: -1)
         viss[3] = vis_shape(pb.GEOM_CYLINDER, radius=0.004 * S, length=shaft_len,
                                       visualFramePosition=[0, 0, -shaft_len / 2], rgbaColor=_SHAFT_COLOUR)
+        # The shaft collides too (the reference's tool-roll link has a collision mesh): an 8 mm capsule whose lower
+        # cap ends at the wrist, so a tool swept sideways stops on a tray wall or a peg instead of passing through.
+        # Only its lowest 6 cm can reach anything on the table (the peg tops, the highest things there, are
+        # < 3 cm above the lowest wrist position); a full-length capsule would overlap the table's bounding box
+        # and cost a narrow-phase test every physics step.
+        r = _SHAFT_RADIUS_M * S
+        collide_len = _SHAFT_COLLISION_LENGTH_M * S
+        cols[3] = c.createCollisionShape(pb.GEOM_CAPSULE, radius=r, height=collide_len - 2 * r,
+                                         collisionFramePosition=[0, 0, -collide_len / 2])
         # Wrist pitch link: a short capsule from the pitch axis to the yaw axis (along its x axis).
         wrist_q = matrix_to_quat(np.array([[0, 0, 1], [0, 1, 0], [-1, 0, 0]], float))
         cols[4] = c.createCollisionShape(pb.GEOM_CAPSULE, radius=0.0025 * S, height=kin.WRIST_LENGTH * S * 0.6,
@@ -119,8 +131,7 @@ class Psm:
         # Jaws: revolute about the wrist-yaw axis (z of frame 6), blades along +y, opening along ±x.
         for sign in (+1.0, -1.0):
             centre = np.array([sign * _JAW_HALF[0], _JAW_HALF[1], 0.0]) * S
-            cols.append(c.createCollisionShape(pb.GEOM_BOX, halfExtents=(_JAW_HALF * S).tolist(),
-                                               collisionFramePosition=centre.tolist()))
+            cols.append(convex_box(c, _JAW_HALF * S, centre))
             viss.append(vis_shape(pb.GEOM_BOX, halfExtents=(_JAW_HALF * S).tolist(),
                                             visualFramePosition=centre.tolist(), rgbaColor=_JAW_COLOUR))
             positions.append([0, 0, 0])
@@ -160,9 +171,15 @@ class Psm:
             c.changeDynamics(body, j, linearDamping=0.0, angularDamping=0.0, jointDamping=0.0)
         for j in ARM_JOINTS:
             c.changeDynamics(body, j, localInertiaDiagonal=[physics.PSM_LINK_INERTIA] * 3)
-        for j in JAW_JOINTS:
+        for j, sign in zip(JAW_JOINTS, _JAW_SIGNS):
             c.changeDynamics(body, j, lateralFriction=physics.JAW_FRICTION, spinningFriction=0.0,
                              localInertiaDiagonal=[physics.JAW_INERTIA] * 3)
+            # A blade cannot swing past the closed position (into the other blade's place), however hard a
+            # surface pushes it: the squeeze motor is weak (physics.JAW_MAX_FORCE), and without this stop a
+            # closed jaw pushed over the pad under bang-bang input ended with its blades crossed by 11°.
+            half_open = kin.JAW_LIMITS[1] / 2
+            lower, upper = sorted((0.0, sign * half_open))
+            c.changeDynamics(body, j, jointLowerLimit=lower, jointUpperLimit=upper)
         return body
 
     def respawn(self) -> None:
