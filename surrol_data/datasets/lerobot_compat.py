@@ -13,8 +13,10 @@ The recorder needs four things lerobot 0.6 has no public API for (shared/docs/re
   matters for ``image`` features.
 
 and the tools use ``compute_stats.aggregate_stats`` / ``io_utils.write_stats`` (repair, upgrade),
-``feature_utils.get_hf_features_from_features`` (upgrade) and ``aggregate.aggregate_datasets`` with
-``io_utils.write_table_one_row_group_per_episode`` (merge). :data:`CHECKED_VERSIONS` lists the lerobot
+``feature_utils.get_hf_features_from_features`` (upgrade) and ``aggregate.aggregate_datasets`` /
+``io_utils.write_table_one_row_group_per_episode`` (merge; it also repairs two things 0.6.1's aggregation gets
+wrong for our datasets: the data files lose their fixed-size vector types, and the episodes-metadata rows of a
+source recorded in several files name files they are not in). :data:`CHECKED_VERSIONS` lists the lerobot
 releases these were read and tested against; on any other, :func:`check_lerobot` warns once
 (:class:`UntestedLerobotWarning`) and ``tests/test_lerobot_compat.py`` fails, naming what to re-check.
 Each patch also checks that what it touches is there and otherwise falls back to lerobot's public path
@@ -42,6 +44,8 @@ INTERNALS = (
     ("lerobot.datasets.io_utils", "write_stats"),
     ("lerobot.datasets.feature_utils", "get_hf_features_from_features"),
     ("lerobot.datasets.utils", "create_lerobot_dataset_card"),
+    # merge (surrol_data.datasets.merge): aggregate_datasets itself, and the writer that restores one row group per
+    # episode after its pandas rewrite of the data files
     ("lerobot.datasets.aggregate", "aggregate_datasets"),
     ("lerobot.datasets.io_utils", "write_table_one_row_group_per_episode"),
 )
@@ -199,14 +203,6 @@ def write_stats(stats: dict, root) -> None:
     from lerobot.datasets.io_utils import write_stats as _write
 
     _write(stats, root)
-
-
-def aggregate_datasets(*args, **kwargs):
-    """lerobot's ``aggregate_datasets`` (merges datasets, copying video), after the version check."""
-    check_lerobot()
-    from lerobot.datasets.aggregate import aggregate_datasets as _aggregate
-
-    return _aggregate(*args, **kwargs)
 
 
 def hf_features(features: dict):
