@@ -65,14 +65,14 @@ class Trial:
 def _command(path: str, out: Path, bases: dict, episodes: int) -> list[str]:
     s, h = str(bases["script"]), str(bases["haptic"])
     return {
-        "script": ["collect", "--source", "script", "--task", TASK, "--episodes", str(episodes), "--out", str(out)],
+        "script": ["collect", "--source", "script", "--task", TASK, "--num-episodes", str(episodes), "--out", str(out)],
         "haptic-operator": ["collect", "--source", "haptic", "--device", "operator", "--skill", "expert",
-                            "--operator-id", "e1", "--task", TASK, "--episodes", str(episodes), "--out", str(out)],
+                            "--operator-id", "e1", "--task", TASK, "--num-episodes", str(episodes), "--out", str(out)],
         "haptic-replay": ["collect", "--source", "haptic", "--device", "replay", "--trace", h, "--task", TASK,
-                          "--episodes", str(episodes), "--out", str(out)],
-        "append": ["collect", "--source", "script", "--task", TASK, "--episodes", str(episodes), "--out", str(out),
+                          "--num-episodes", str(episodes), "--out", str(out)],
+        "append": ["collect", "--source", "script", "--task", TASK, "--num-episodes", str(episodes), "--out", str(out),
                    "--append"],
-        "merge": ["merge", str(out), s, h],
+        "merge": ["merge", s, h, "--out", str(out)],
         "filter": ["filter", s, "--where", "success", "--out", str(out)],
         "split": ["split", s, "--out", str(out), "--valid-fraction", "0.3"],
         "export": ["export", s, "--format", "robomimic", "--out", str(out)],
@@ -157,9 +157,9 @@ def _run(args: list[str], log: Path, delay: float | None, sig: int | None) -> tu
 
 def _build_bases(work: Path) -> dict:
     bases = {"script": work / "base_script", "haptic": work / "base_haptic"}
-    for args in (["collect", "--source", "script", "--task", TASK, "--episodes", "6", "--out", str(bases["script"])],
+    for args in (["collect", "--source", "script", "--task", TASK, "--num-episodes", "6", "--out", str(bases["script"])],
                  ["collect", "--source", "haptic", "--device", "operator", "--skill", "expert", "--operator-id",
-                  "e1", "--task", TASK, "--episodes", "4", "--out", str(bases["haptic"])]):
+                  "e1", "--task", TASK, "--num-episodes", "4", "--out", str(bases["haptic"])]):
         _, code, _ = _run(args, work / "base.log", None, None)
         if code != 0:
             raise SystemExit(f"building a base dataset failed: see {work / 'base.log'}")

@@ -64,13 +64,16 @@ def write_plain_lerobot(root: Path, episodes: list[Trajectory]) -> float:
                                video_backend="pyav")
     try:
         for traj in episodes:
+            environment = np.concatenate([traj.achieved_goal, traj.desired_goal], axis=1)
+            truncated = np.zeros((len(traj), 1), bool)
+            truncated[-1] = not traj.terminated[-1]
             cols = {
-                "observation.state": traj.observation[:-1], "observation.achieved_goal": traj.achieved_goal[:-1],
-                "observation.desired_goal": traj.desired_goal[:-1], "action": traj.action,
+                "observation.state": traj.observation[:-1], "observation.environment_state": environment[:-1],
+                "action": traj.action,
                 "next.reward": traj.reward[:, None], "next.done": traj.terminated[:, None],
+                "next.truncated": truncated,
                 "next.success": traj.success[:, None], "next.observation.state": traj.observation[1:],
-                "next.observation.achieved_goal": traj.achieved_goal[1:],
-                "next.observation.desired_goal": traj.desired_goal[1:],
+                "next.observation.environment_state": environment[1:],
                 "complementary_info.tip_position": traj.tip_position[:-1].reshape(len(traj), 3),
                 "complementary_info.jaw_angle": traj.jaw_angle[:-1],
                 "complementary_info.next_tip_position": traj.tip_position[1:].reshape(len(traj), 3),

@@ -7,7 +7,8 @@ Each task runs ``episodes`` seeded oracle episodes per repeat; the table gives t
 The oracle's own compute is excluded from the step timing (as in the reference measurement), the gym
 wrappers (TimeLimit, order enforcing, checker) are included because users step through them.
 Baseline for the ratio: the original SurRoL measured on this 2-core machine kind
-(``shared/docs/reference/surrol-tasks.md`` §9.2: steps/s excluding reset).
+(``shared/docs/reference/surrol-tasks.md`` §9.2: steps/s excluding reset; §9.3, the SurRoL-v2 branch, for the
+paper's new tasks).
 """
 
 from __future__ import annotations
@@ -26,7 +27,12 @@ from surrol_data.envs import env_id
 
 REFERENCE_STEPS_PER_S = {"NeedleReach": 59.0, "GauzeRetrieve": 115.0, "NeedlePick": 63.0, "PegTransfer": 33.0,
                          "NeedleRegrasp": 50.0, "BiPegTransfer": 16.0, "ECMReach": 418.0, "MisOrient": 783.0,
-                         "StaticTrack": 30.0, "ActiveTrack": 23.0}
+                         "StaticTrack": 30.0, "ActiveTrack": 23.0,
+                         # The paper's new tasks exist only in the reference's SurRoL-v2 branch (§9.3, same
+                         # machine kind, its GUI classes measured with the same harness); MatchBoardPanel is
+                         # compared with v2's MatchBoardII, its drawer task.
+                         "PickAndPlace": 19.8, "MatchBoard": 4.9, "MatchBoardPanel": 41.9,
+                         "PegBoard": 68.5, "NeedleRings": 32.9}
 TARGET_SPEED_UP = 15.0
 
 

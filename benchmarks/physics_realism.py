@@ -33,13 +33,17 @@ from rich.progress import Progress
 from rich.table import Table
 
 import surrol_data.envs  # noqa: F401  (registers the ids)
-from surrol_data.envs import env_id, objects, peg_board
+from surrol_data.envs import drawer, env_id, jacks, match_board, objects, peg_board, ring_board
 from surrol_data.envs.psm import JAW_JOINTS
 from surrol_data.envs import kinematics as kin
 from surrol_data.envs.psm_env import WORKSPACE, WORKSPACE_MARGIN
+from surrol_data.envs.tasks.match_board import MatchBoard
+from surrol_data.envs.tasks.match_board_panel import MatchBoardPanel
+from surrol_data.envs.tasks.pick_and_place import PickAndPlace
 from surrol_data.envs.units import ACTION_POSITION_M, SCALING
 
-TASKS = ["NeedleReach", "GauzeRetrieve", "NeedlePick", "PegTransfer", "NeedleRegrasp", "BiPegTransfer"]
+TASKS = ["NeedleReach", "GauzeRetrieve", "NeedlePick", "PegTransfer", "NeedleRegrasp", "BiPegTransfer",
+         "PickAndPlace", "MatchBoard", "MatchBoardPanel", "PegBoard", "NeedleRings"]
 POLICIES = ["random", "bang-bang", "oracle"]
 SCENARIOS = ["poke", "swipe", "drop", "tracking"]
 GRASPING_TASKS = ["GauzeRetrieve", "NeedlePick", "PegTransfer"]      # poke/swipe targets (single arm, jaw free)
@@ -123,7 +127,7 @@ class Probe:
             if not g.attached:
                 self._held.pop(k, None)
                 continue
-            rel = relative_pose(c, g.psm.body, g.object_id)
+            rel = relative_pose(c, g.psm.body, g.object_id, getattr(g, "object_link", -1))
             first = self._held.setdefault(k, (g.constraint, rel))
             if first[0] != g.constraint:
                 self._held[k] = first = (g.constraint, rel)
@@ -137,16 +141,23 @@ class Probe:
 
 
 def has_collision_shape(c, body: int) -> bool:
-    """A body without a collision shape (goal marker, endoscope) has a bounding box of zero size.
+    """A body without a collision shape (goal marker, endoscope) has a bounding box of zero size; a multibody may
+    keep its shapes on its links only (the panel's drawer: a shapeless base at the cabinet).
     (``getCollisionShapeData`` cannot tell: it fails on maximal-coordinate bodies such as the needle.)"""
-    lo, hi = c.getAABB(body)
-    return any(h > l for l, h in zip(lo, hi))
+    for link in range(-1, c.getNumJoints(body)):
+        lo, hi = c.getAABB(body, link)
+        if any(h > l for l, h in zip(lo, hi)):
+            return True
+    return False
 
 
-def relative_pose(c, body: int, obj: int) -> np.ndarray:
-    """The object's base position in the wrist (EEF) frame, scaled units."""
+def relative_pose(c, body: int, obj: int, link: int = -1) -> np.ndarray:
+    """The held object's (its base's, or its ``link``'s) position in the wrist (EEF) frame, scaled units."""
     eef = c.getLinkState(body, 5, computeForwardKinematics=True)
-    pos, quat = c.getBasePositionAndOrientation(obj)
+    if link < 0:
+        pos, quat = c.getBasePositionAndOrientation(obj)
+    else:
+        pos, quat = c.getLinkState(obj, link, computeForwardKinematics=True)[:2]
     inv_p, inv_q = c.invertTransform(eef[4], eef[5])
     return np.asarray(c.multiplyTransforms(inv_p, inv_q, pos, quat)[0])
 
@@ -189,7 +200,24 @@ def support_z(task: str, xy: np.ndarray) -> float:
     if task in ("PegTransfer", "BiPegTransfer"):
         on_board = np.all(np.abs(xy - peg_board.BOARD_ORIGIN[:2]) < peg_board.BOARD_HALF_EXTENTS[:2])
         return peg_board.BOARD_ORIGIN[2] + peg_board.BOARD_HALF_EXTENTS[2] if on_board else objects.TABLE_TOP_Z
-    return objects.TABLE_TOP_Z   # NeedleRegrasp: the needle is held in the air; the table is what it falls to
+    if task == "PickAndPlace":   # a tray's floor (wherever the episode put the tray), or the table
+        reach = jacks.TRAY_INNER_HALF + jacks.TRAY_WALL + PickAndPlace.TRAY_JITTER_M
+        in_tray = np.any(np.all(np.abs(xy - PickAndPlace.TRAY_SLOTS) < reach, axis=1))
+        return jacks.tray_floor_z() if in_tray else objects.TABLE_TOP_Z
+    if task == "MatchBoard":     # a groove's floor over the board (the lowest a block rests there), or the table
+        half = np.array([len(MatchBoard.GLYPHS) * match_board.CELL_PIXELS[0], match_board.CELL_PIXELS[1]]) \
+            * match_board.PIXEL / 2
+        on_board = np.all(np.abs(xy - MatchBoard.BOARD_ORIGIN[:2]) < half)
+        return (objects.TABLE_TOP_Z + match_board.BOARD_THICKNESS - match_board.GROOVE_DEPTH if on_board
+                else objects.TABLE_TOP_Z)
+    if task == "MatchBoardPanel":   # the drawer's floor over the cabinet and the drawer's path, or the table
+        d = xy - MatchBoardPanel.CABINET_CENTRE[:2]
+        over = abs(d[0]) < 0.036 and -0.02 - drawer.TRAVEL < d[1] < 0.021
+        return objects.TABLE_TOP_Z + drawer.FLOOR_TOP if over else objects.TABLE_TOP_Z
+    if task == "PegBoard":
+        on_board = np.all(np.abs(xy - ring_board.BOARD_CENTRE_XY) < ring_board.BOARD_HALF_EXTENTS[:2])
+        return ring_board.BOARD_TOP_Z if on_board else objects.TABLE_TOP_Z
+    return objects.TABLE_TOP_Z   # NeedleRegrasp, NeedleRings: the needle is held in the air; the table is what it falls to
 
 
 def check_end(task: str, probe: Probe, res: Result) -> None:

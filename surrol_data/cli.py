@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import shlex
 import sys
 from enum import Enum
@@ -32,14 +33,89 @@ def _note(message: str) -> None:
     Console(stderr=True).print(f"[yellow]note:[/] {message}", highlight=False)
 
 
+# ---------------------------------------------------------------- the grammar every command shares
+# A dataset is a positional argument; what a command writes is --out; --episodes is always episode indices
+# (0,3,5-9) and --num-episodes a count. Anything that can take more than ~2 s shows progress on stderr.
+
+def _episode_indices(spec: Optional[str]) -> Optional[list[int]]:
+    from surrol_data.datasets.episode_ranges import parse_episode_ranges
+
+    if spec is None:
+        return None
+    try:
+        return parse_episode_ranges(spec)
+    except ValueError as e:
+        _fail(str(e))
+
+
+def _count(num_episodes: Optional[int], old_episodes: Optional[int], default: Optional[int] = None) -> int:
+    """--num-episodes, or the deprecated --episodes N of earlier versions (with a note), or ``default``."""
+    if old_episodes is not None:
+        if num_episodes is not None:
+            _fail("give the number of episodes once, with --num-episodes (--episodes N is its old name)")
+        _note(f"--episodes N (a count) is deprecated here: write --num-episodes {old_episodes}; --episodes now "
+              "always means episode indices such as 0,3,5-9")
+        return old_episodes
+    if num_episodes is None:
+        if default is None:
+            _fail("say how many episodes: --num-episodes N")
+        return default
+    return num_episodes
+
+
+def _old_count_option():
+    return typer.Option(None, "--episodes", hidden=True, min=1, help="Deprecated: the old name of --num-episodes.")
+
+
+@contextlib.contextmanager
+def _stages(title: str, stages: tuple[str, ...]):
+    """A progress bar over named stages: ``with _stages(...) as stage: stage("name")`` as each one starts."""
+    from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    with Progress(SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(),
+                  console=Console(stderr=True), transient=True) as progress:
+        task = progress.add_task(title, total=len(stages))
+        started: list[str] = []
+
+        def stage(name: str) -> None:
+            if started:
+                progress.advance(task)
+            started.append(name)
+            progress.update(task, description=f"{title}: {name}")
+
+        yield stage
+
+
+def _working(message: str):
+    """A spinner on stderr while a single long step runs."""
+    return Console(stderr=True).status(message)
+
+
+def _camera_size(camera: bool, camera_size: Optional[str]) -> Optional[tuple[int, int]]:
+    if camera_size is not None and not camera:
+        camera = True  # --camera-size alone asks for the camera too
+    if not camera:
+        return None
+    spec = camera_size or "128x128"
+    try:
+        w, h = (int(v) for v in spec.lower().split("x"))
+    except ValueError:
+        _fail(f"--camera-size takes WIDTHxHEIGHT in pixels, e.g. 128x128; got {spec!r}")
+    if not (8 <= w <= 2048 and 8 <= h <= 2048):
+        _fail(f"--camera-size: {spec} is outside 8..2048 pixels per side")
+    return w, h
+
+
 @app.command()
 def demo(out: Optional[Path] = typer.Option(None, help="Folder for everything the demo makes (default: a new temp folder)."),
-         episodes: int = typer.Option(20, min=1, help="Scripted demos to collect."),
+         num_episodes: Optional[int] = typer.Option(None, min=1, help="Scripted demos to collect (default 20)."),
          eval_episodes: int = typer.Option(20, min=1, help="Evaluation episodes per policy."),
-         seed: int = typer.Option(0, help="First demo seed.")):
+         seed: int = typer.Option(0, help="First demo seed."),
+         old_episodes: Optional[int] = _old_count_option()):
     """Quick end-to-end run: collect NeedlePick script demos, train BC, evaluate, write a report and a Rerun file."""
     from surrol_data.demo import run_demo
 
+    episodes = _count(num_episodes, old_episodes, default=20)
     try:
         run_demo(out, episodes=episodes, eval_episodes=eval_episodes, seed=seed, console=console)
     except FileExistsError as e:
@@ -49,8 +125,12 @@ def demo(out: Optional[Path] = typer.Option(None, help="Folder for everything th
 @app.command()
 def collect(source: Source = typer.Option(..., help="Where actions come from: the scripted oracle or a teleoperation device."),
             task: str = typer.Option(..., help="Task name, e.g. NeedlePick (see `surrol-data tasks`)."),
-            episodes: int = typer.Option(..., min=1, help="Episodes to record (kept ones)."),
+            num_episodes: Optional[int] = typer.Option(None, min=1, help="Episodes to record (kept ones)."),
             out: Path = typer.Option(..., help="Dataset folder (must not exist unless --append)."),
+            camera: bool = typer.Option(False, help="Also record the endoscope view as video "
+                                                    "(observation.images.endoscope)."),
+            camera_size: Optional[str] = typer.Option(None, help="Endoscope image WIDTHxHEIGHT with --camera "
+                                                                 "(default 128x128)."),
             seed: Optional[int] = typer.Option(None, help="Seed of the first attempt; attempt i uses seed + i "
                                                "(default 0; with --append, one past the dataset's last seed)."),
             max_steps: Optional[int] = typer.Option(None, min=1, help="Episode horizon (default: the task's)."),
@@ -67,18 +147,27 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
             gui: Optional[bool] = typer.Option(None, "--gui/--no-gui", help="haptic: PyBullet window (default: "
                                                "with a display, for human devices)."),
             rerun_live: Optional[str] = typer.Option(None, help="haptic: stream to Rerun: 'spawn', a "
-                                                     "rerun+http:// URL or an .rrd path.")):
-    """Record demonstrations into a LeRobot v3 dataset with per-episode provenance."""
+                                                     "rerun+http:// URL or an .rrd path."),
+            profile: Optional[str] = typer.Option(None, help="haptic operator: profile other than the skill's "
+                                                  "natural one, e.g. expert_matched (the paper's demo pace)."),
+            speed: float = typer.Option(1.0, min=0.01, max=1.0, help="script: the oracle's pace (0.3 matches the "
+                                        "paper's script demos at --max-steps 150)."),
+            old_episodes: Optional[int] = _old_count_option()):
+    """Record demonstrations into a LeRobot v3 dataset with per-episode provenance (and the endoscope video)."""
     command = shlex.join(["surrol-data", *sys.argv[1:]])
+    episodes = _count(num_episodes, old_episodes)
+    size = _camera_size(camera, camera_size)
     if source is Source.haptic:
         from surrol_data.collect.devices import DeviceError
         from surrol_data.collect.haptic_source import collect_haptic, parse_mapping
+        from surrol_data.collect.script_source import camera_kwargs
 
         try:
             result = collect_haptic(task, episodes, out, device=device, operator_id=operator_id, skill=skill,
                                     sides=side or None, mapping=parse_mapping(mapping or []), trace=trace, seed=seed,
                                     max_steps=max_steps, keep_failures=keep_failures, append=append, gui=gui,
-                                    rerun_live=rerun_live, command=command)
+                                    rerun_live=rerun_live, command=command, env_kwargs=camera_kwargs(size),
+                                    profile=profile)
         except (ValueError, FileExistsError, RuntimeError) as e:   # DeviceError is a RuntimeError
             _fail(str(e) if not isinstance(e, DeviceError) else f"device: {e}")
         console.print(f"recorded {result.kept} episodes ({result.attempts} attempts, success "
@@ -88,7 +177,7 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
 
     try:
         result = collect_script(task, episodes, out, seed=seed, max_steps=max_steps, keep_failures=keep_failures,
-                                append=append, command=command)
+                                append=append, command=command, camera_size=size, speed=speed)
     except (ValueError, FileExistsError, RuntimeError) as e:
         _fail(str(e))
     console.print(f"recorded {result.kept} episodes ({result.attempts} attempts, oracle success "
@@ -155,38 +244,54 @@ def info(dataset: Path = typer.Argument(..., help="Dataset folder.")):
     from surrol_data.datasets.reader import DatasetError
 
     try:
-        require_valid(dataset, _note)
-        console.print(render_info(dataset))
+        with _working(f"checking and summarising {dataset} ..."):
+            require_valid(dataset, _note)
+            summary = render_info(dataset)
+        console.print(summary)
     except DatasetError as e:
         _fail(str(e))
 
 
 @app.command("eval")
 def evaluate_cmd(task: str = typer.Option(..., help="Task name, e.g. NeedlePick."),
-                 policy: str = typer.Option("oracle", help="'oracle' or the path of a BC checkpoint (.pt)."),
-                 episodes: int = typer.Option(20, min=1),
+                 policy: str = typer.Option("oracle", help="'oracle', 'lerobot:DIR' (a policy trained by lerobot-train), "
+                                                           "the path of a BC checkpoint (.pt), or a run or sweep "
+                                                           "folder: every policy.pt under it."),
+                 num_episodes: Optional[int] = typer.Option(None, min=1, help="Episodes to run (default 20)."),
                  seed: Optional[int] = typer.Option(None, help="Seed of the first episode; episode i uses seed + i "
                                                                "(default: 1,000,000,000, never a demo's seed)."),
                  max_steps: Optional[int] = typer.Option(None, min=1),
                  out: Optional[Path] = typer.Option(None, help="JSON file recording task, policy, seeds, summary "
-                                                                "and every episode's metrics.")):
-    """Run a policy for N seeded episodes (unseen seeds by default) and print its proficiency metrics."""
+                                                                "and every episode's metrics (a list for a folder)."),
+                 old_episodes: Optional[int] = _old_count_option()):
+    """Run a policy (or every run's policy under a folder) for N seeded episodes (unseen seeds by default) and
+    print the proficiency metrics."""
     import json
+
+    episodes = _count(num_episodes, old_episodes, default=20)
 
     from surrol_data.demo import print_summary
     from surrol_data.envs import env_id
     from surrol_data.evaluation.rollout import EVAL_SEED_BASE, evaluate
 
     first = EVAL_SEED_BASE if seed is None else seed
-    try:
-        result = evaluate(env_id(task), policy, episodes, seed=first, max_steps=max_steps)
-    except (ValueError, FileNotFoundError) as e:
-        _fail(str(e))
-    print_summary(console, {f"{policy} on {task}": result.summary})
+    folder = Path(policy) if policy != "oracle" and Path(policy).is_dir() else None
+    specs = sorted(str(p) for p in folder.rglob("policy.pt")) if folder else [policy]
+    if not specs:
+        _fail(f"{policy} holds no policy.pt: give a training run or sweep folder (runs/...), a checkpoint or 'oracle'")
+    records, summaries = [], {}
+    for spec in specs:
+        try:
+            result = evaluate(env_id(task), spec, episodes, seed=first, max_steps=max_steps)
+        except (ValueError, FileNotFoundError) as e:
+            _fail(str(e))
+        summaries[f"{spec} on {task}"] = result.summary
+        records.append(_nan_to_null(result.as_record(spec)))
+    print_summary(console, summaries)
     console.print(f"seeds {first}..{first + episodes - 1}")
     if out is not None:
         out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(json.dumps(_nan_to_null(result.as_record(policy)), indent=2, allow_nan=False))
+        out.write_text(json.dumps(records if folder else records[0], indent=2, allow_nan=False))
         console.print(f"wrote {out}")
 
 
@@ -245,6 +350,25 @@ def report(runs: list[Path] = typer.Argument(..., help="Training run folders, or
     console.print(f"wrote {files['markdown']}, {files['html']} and {files['curves']}")
 
 
+@app.command()
+def study(experiment: str = typer.Argument(..., help="A study experiment config: table1 or table1_quick."),
+          out: Path = typer.Option(..., help="Folder for the demo sets, the runs and the report."),
+          natural: bool = typer.Option(False, help="Use the operators' natural pace instead of demo sets matched "
+                                                   "to the paper's."),
+          override: list[str] = typer.Option([], help="Hydra override for every run, e.g. algo=ddpgbc_warm "
+                                                      "(repeatable).")):
+    """The Table I study in one command: build the demo sets, train every run (one batched ensemble), report."""
+    from surrol_data.datasets.reader import DatasetError
+    from surrol_data.evaluation.study_report import StudyReportError
+    from surrol_data.study import run_study
+
+    try:
+        files = run_study(experiment, out, natural=natural, overrides=override, command=_this_command())
+    except (StudyReportError, DatasetError, ValueError, FileNotFoundError, RuntimeError) as e:
+        _fail(str(e))
+    console.print(f"wrote {files['markdown']}, {files['html']} and {files['curves']}")
+
+
 @app.command("train-bc")
 def train_bc_cmd(dataset: Path = typer.Argument(..., help="Dataset folder with demos."),
                  out: Path = typer.Option(..., help="Checkpoint file to write (.pt)."),
@@ -292,11 +416,11 @@ def train(ctx: typer.Context):
 @app.command()
 def view(dataset: Path = typer.Argument(..., help="Dataset folder."),
          out: Optional[Path] = typer.Option(None, help="Rerun recording to write (.rrd)."),
-         episodes: str = typer.Option("0", help="Comma-separated episode indices to show side by side."),
+         episodes: str = typer.Option("0", help="Episode indices to show side by side, e.g. 0,3,5-9."),
          web: bool = typer.Option(False, help="Serve the recording in Rerun's web viewer (until Ctrl-C)."),
          web_port: int = typer.Option(9090, help="Port of the web viewer with --web."),
          open_browser: bool = typer.Option(True, help="With --web: open the viewer in the default browser.")):
-    """Rerun view of dataset episodes: instruments, tool paths, objects, goal, actions, jaw, clutch, provenance."""
+    """Rerun view of dataset episodes: instruments, tool paths, objects, goal, actions, jaw, clutch, camera, provenance."""
     from surrol_data.datasets.info import read_sidecar
     from surrol_data.datasets.reader import DatasetError, DatasetReader
     from surrol_data.viz.instrument import psm_rcm_positions
@@ -305,26 +429,30 @@ def view(dataset: Path = typer.Argument(..., help="Dataset folder."),
 
     if out is None and not web:
         _fail("say where the recording goes: --out FILE.rrd, and/or --web to serve it in Rerun's web viewer")
+    wanted = _episode_indices(episodes)
     try:
         require_valid(dataset, _note)
         reader = DatasetReader(dataset)
-        wanted = [int(e) for e in episodes.split(",") if e.strip()]
     except (DatasetError, ValueError) as e:
         _fail(str(e))
     table = reader.episodes.set_index("episode_index")
     missing = [e for e in wanted if e not in table.index]
     if missing:
-        _fail(f"episodes {missing} are not in {dataset} (it has {len(table)}: {list(table.index)[:10]}...)")
+        _fail(f"--episodes: {missing} are not in {dataset} (it has {len(table)} episodes, 0-{len(table) - 1})")
     items = []
-    for ep in wanted:
-        row = table.loc[ep].to_dict()
-        label = f"ep{ep} {row.get('source', '')} {row.get('skill', '')}".strip()
-        items.append((label, reader.trajectory(ep), {k: row[k] for k in row if not str(k).startswith("stats")}))
+    with _working(f"reading {len(wanted)} episode(s) of {dataset} ..."):
+        for ep in wanted:
+            row = table.loc[ep].to_dict()
+            label = f"ep{ep} {row.get('source', '')} {row.get('skill', '')}".strip()
+            items.append((label, reader.trajectory(ep, images=True),
+                          {k: row[k] for k in row if not str(k).startswith("stats")}))
     rcms = psm_rcm_positions(read_sidecar(dataset).get("env_id", ""))
     if out is not None:
         from surrol_data.viz.rerun_log import save_rrd
 
-        console.print(f"wrote {save_rrd(out, items, rcm_positions=rcms)}; open it with: rerun {out}")
+        with _working(f"writing {out} ..."):
+            written = save_rrd(out, items, rcm_positions=rcms)
+        console.print(f"wrote {written}; open it with: rerun {out}")
     if web:
         _serve_web(items, rcms, web_port, open_browser)
 
@@ -361,13 +489,14 @@ def tasks():
                                                      "endoscope image to the observation")
     for col in ("task", "arms", "obs", "goal", "action", "horizon"):
         table.add_column(col)
-    for name in TASKS:
-        env = gym.make(env_id(name))
-        spaces = env.observation_space
-        table.add_row(name, _arms(env), str(spaces["observation"].shape[0]),
-                      str(spaces["desired_goal"].shape[0]), str(env.action_space.shape[0]),
-                      str(env.spec.max_episode_steps))
-        env.close()
+    with _working("making each task's env ..."):
+        for name in TASKS:
+            env = gym.make(env_id(name))
+            spaces = env.observation_space
+            table.add_row(name, _arms(env), str(spaces["observation"].shape[0]),
+                          str(spaces["desired_goal"].shape[0]), str(env.action_space.shape[0]),
+                          str(env.spec.max_episode_steps))
+            env.close()
     console.print(table)
 
 
@@ -402,9 +531,11 @@ def validate(dataset: Path = typer.Argument(..., help="Dataset folder."),
              reward: bool = typer.Option(True, help="Check rewards against the task's compute_reward (makes the env)."),
              lerobot: bool = typer.Option(True, help="Check that LeRobotDataset reads it (imports lerobot, ~6 s).")):
     """Check schema, provenance, counts, NaN/inf, rewards and LeRobot readability; exit 1 listing each problem."""
-    from surrol_data.datasets.validate import validate_dataset
+    from surrol_data.datasets.validate import STAGES, validate_dataset
 
-    problems = validate_dataset(dataset, check_reward=reward, check_lerobot=lerobot)
+    stages = tuple(s for s in STAGES if (s != "reward" or reward) and (s != "lerobot" or lerobot))
+    with _stages(f"validate {dataset}", stages) as stage:
+        problems = validate_dataset(dataset, check_reward=reward, check_lerobot=lerobot, progress=stage)
     for problem in problems:
         console.print(f"[bold red]✗[/] {problem}", markup=True, highlight=False)
     if problems:
@@ -420,7 +551,8 @@ def repair(dataset: Path = typer.Argument(..., help="Dataset folder left by a ki
     from surrol_data.datasets.reader import DatasetError
 
     try:
-        report = repair_dataset(dataset)
+        with _working(f"repairing {dataset} ..."):
+            report = repair_dataset(dataset)
     except DatasetError as e:
         _fail(str(e))
     for line in report.lines():
@@ -428,14 +560,24 @@ def repair(dataset: Path = typer.Argument(..., help="Dataset folder left by a ki
 
 
 @app.command()
-def merge(out: Path = typer.Argument(..., help="New dataset folder."),
-          datasets: list[Path] = typer.Argument(..., help="Input dataset folders (same task and features)."),
+def merge(datasets: list[Path] = typer.Argument(..., help="Input dataset folders (same task, fps and features)."),
+          out: Optional[Path] = typer.Option(None, help="New dataset folder for the merged episodes."),
           drop_duplicates: bool = typer.Option(False, help="Keep one copy of episodes with equal content instead "
-                                                           "of refusing the merge.")):
-    """Merge datasets into a new one (episodes renumbered; provenance kept; duplicate episodes refused)."""
+                                                           "of refusing the merge (writes the episodes again).")):
+    """Merge datasets into a new one with lerobot's aggregate_datasets (episodes renumbered; provenance, device
+    traces and videos kept as they are; duplicate episodes refused)."""
     from surrol_data.datasets.merge import merge_datasets
     from surrol_data.datasets.reader import DatasetError
 
+    if out is None:
+        first = datasets[0]
+        if len(datasets) >= 2 and not (first / "meta" / "info.json").exists():
+            # The earlier grammar `merge OUT IN...`: still understood, for a while.
+            _note(f"`merge OUT IN...` is deprecated: write `surrol-data merge {' '.join(map(str, datasets[1:]))} "
+                  f"--out {first}`")
+            out, datasets = first, datasets[1:]
+        else:
+            _fail("say where the merged dataset goes: surrol-data merge IN... --out OUT")
     try:
         merge_datasets(out, datasets, command=_this_command(), drop_duplicates=drop_duplicates)
     except (DatasetError, ValueError, FileExistsError) as e:
@@ -445,17 +587,25 @@ def merge(out: Path = typer.Argument(..., help="New dataset folder."),
 
 @app.command("filter")
 def filter_cmd(dataset: Path = typer.Argument(..., help="Dataset folder."),
-               where: str = typer.Option(..., help="Expression over provenance, e.g. 'skill == \"expert\" and success'."),
-               out: Path = typer.Option(..., help="New dataset folder.")):
-    """Copy the episodes matching --where into a new dataset (provenance kept)."""
+               out: Path = typer.Option(..., help="New dataset folder."),
+               where: Optional[str] = typer.Option(None, help="Expression over provenance, e.g. "
+                                                               "'skill == \"expert\" and success'."),
+               episodes: Optional[str] = typer.Option(None, help="Episode indices, e.g. 0,3,5-9 (with --where: "
+                                                                 "those of them that match).")):
+    """Copy the episodes matching --where and/or listed by --episodes into a new dataset (provenance kept)."""
     from surrol_data.datasets.merge import filter_dataset
     from surrol_data.datasets.reader import DatasetError
 
+    if where is None and episodes is None:
+        _fail("say which episodes to keep: --where EXPRESSION and/or --episodes 0,3,5-9")
+    indices = _episode_indices(episodes)
     try:
-        filter_dataset(dataset, out, where, command=_this_command())
+        filter_dataset(dataset, out, where, command=_this_command(), episodes=indices)
     except (DatasetError, ValueError, FileExistsError) as e:
         _fail(str(e))
-    console.print(f"wrote the episodes where {where} to {out}")
+    said = " and ".join(x for x in (f"where {where}" if where else "", f"--episodes {episodes}" if episodes else "")
+                        if x)
+    console.print(f"wrote the episodes {said} to {out}")
 
 
 @app.command()
@@ -485,6 +635,7 @@ def export(dataset: Path = typer.Argument(..., help="Dataset folder."),
            format: ExportFormat = typer.Option(..., "--format", help="robomimic (one .hdf5) or minari (a folder)."),
            out: Path = typer.Option(..., help="robomimic: FILE.hdf5; minari: the datasets root folder."),
            where: Optional[str] = typer.Option(None, help="Only episodes matching this expression."),
+           episodes: Optional[str] = typer.Option(None, help="Only these episode indices, e.g. 0,3,5-9."),
            dataset_id: Optional[str] = typer.Option(None, help="minari: dataset id (default surrol/<task>/<name>-v0)."),
            valid_fraction: float = typer.Option(0.1, help="robomimic: fraction in mask/valid."),
            seed: int = typer.Option(0, help="robomimic: seed of the train/valid split."),
@@ -492,19 +643,28 @@ def export(dataset: Path = typer.Argument(..., help="Dataset folder."),
     """Export to robomimic HDF5 (with filter keys by skill/operator and train/valid) or to Minari."""
     from surrol_data.datasets.reader import DatasetError
 
+    indices = _episode_indices(episodes)
     try:
         if format is ExportFormat.robomimic:
             from surrol_data.datasets.export_robomimic import export_robomimic
 
             path = export_robomimic(dataset, out, where=where, valid_fraction=valid_fraction, seed=seed,
-                                    overwrite=overwrite)
-            console.print(f"wrote {path}")
+                                    overwrite=overwrite, episodes=indices)
+            from surrol_data.datasets.reader import DatasetReader
+
+            cameras = DatasetReader(dataset).cameras
+            console.print(f"wrote {path}" + (f" (camera frames in obs/{cameras[0]}_image)" if cameras else ""))
         else:
             from surrol_data.datasets.export_minari import export_minari
 
-            ds = export_minari(dataset, out, dataset_id=dataset_id, where=where)
+            ds = export_minari(dataset, out, dataset_id=dataset_id, where=where, episodes=indices)
             console.print(f"wrote Minari dataset {ds.spec.dataset_id!r} ({ds.total_episodes} episodes) under {out}; "
                           f"load it with MINARI_DATASETS_PATH={out} and minari.load_dataset({ds.spec.dataset_id!r})")
+            from surrol_data.datasets.reader import DatasetReader
+
+            if DatasetReader(dataset).cameras:
+                _note("the Minari export holds the state, goals, actions and rewards, not the camera frames; "
+                      "`--format robomimic` exports those too (obs/<camera>_image)")
     except (DatasetError, ValueError, FileExistsError, ImportError) as e:
         _fail(str(e))
 
@@ -520,7 +680,8 @@ def push(dataset: Path = typer.Argument(..., help="Dataset folder."),
     from surrol_data.datasets.reader import DatasetError
 
     try:
-        plan = push_dataset(dataset, repo_id, private=private, dry_run=dry_run, skip_validation=skip_validation)
+        with _working(f"{'planning' if dry_run else 'validating and uploading'} {dataset} ..."):
+            plan = push_dataset(dataset, repo_id, private=private, dry_run=dry_run, skip_validation=skip_validation)
     except (DatasetError, ValueError, RuntimeError) as e:
         _fail(str(e))
     for name in plan.files:
@@ -528,6 +689,22 @@ def push(dataset: Path = typer.Argument(..., help="Dataset folder."),
     verb = "would upload" if dry_run else "uploaded"
     console.print(f"{verb} {len(plan.files)} files ({plan.bytes / 1e6:.2f} MB) to datasets/{repo_id}"
                   + (f", tag {plan.revision_tag}" if plan.revision_tag else ""))
+
+
+@app.command()
+def upgrade(dataset: Path = typer.Argument(..., help="Dataset folder written by an earlier surrol_data schema."),
+            keep_backup: bool = typer.Option(False, help="Keep the original beside it as DATASET.schema1.")):
+    """Rewrite a dataset in the current schema (environment state, next.truncated, named dimensions)."""
+    from surrol_data.datasets.reader import DatasetError
+    from surrol_data.datasets.upgrade import upgrade_dataset
+
+    try:
+        with console.status(f"upgrading {dataset}"):
+            report = upgrade_dataset(dataset, keep_backup=keep_backup)
+    except DatasetError as e:
+        _fail(str(e))
+    for line in report.lines():
+        console.print(line, highlight=False)
 
 
 if __name__ == "__main__":

@@ -250,3 +250,71 @@ def test_recorder_checkpoints_without_resume_and_stays_valid(dataset, tmp_path, 
     back = DatasetReader(out)
     for ep in range(5):
         assert_same(back.trajectory(ep), trajs[ep])
+
+
+def _file_digests(root: Path) -> dict[str, str]:
+    import hashlib
+
+    return {p.relative_to(root).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def test_killed_merge_leaves_no_output_and_its_inputs_untouched(dataset, tmp_path):
+    """SIGKILL in the middle of lerobot's aggregation (after the first input's files were copied): no output
+    folder, inputs byte for byte as they were, and the next merge into the same folder succeeds and validates."""
+    import os
+    import signal
+
+    import lerobot.datasets.aggregate as aggregate
+
+    from surrol_data.datasets.merge import merge_datasets, staging_folder
+    from surrol_data.datasets.validate import validate_dataset
+
+    root, _ = dataset
+    other, _ = make_dataset(tmp_path / "other", labels=LABELS[:2], first_seed=40)
+    before = {r: _file_digests(r) for r in (root, other)}
+    out = tmp_path / "merged"
+    pid = os.fork()
+    if pid == 0:  # the merge, killed by itself once lerobot starts on the second input
+        try:
+            calls = []
+            original = aggregate.aggregate_data
+
+            def kill_on_second(*args, **kwargs):
+                calls.append(1)
+                if len(calls) == 2:
+                    os.kill(os.getpid(), signal.SIGKILL)
+                return original(*args, **kwargs)
+
+            aggregate.aggregate_data = kill_on_second
+            merge_datasets(out, [root, other], progress=False)
+        finally:
+            os._exit(3)  # not reached when killed
+    _, status = os.waitpid(pid, 0)
+    assert os.waitstatus_to_exitcode(status) == -signal.SIGKILL
+    assert not out.exists() and staging_folder(out).exists()  # half a merge never carries the output's name
+    assert {r: _file_digests(r) for r in (root, other)} == before
+    merge_datasets(out, [root, other], progress=False)   # the stale staging folder is cleared
+    assert not staging_folder(out).exists()
+    assert validate_dataset(out, check_lerobot=False) == []
+    assert len(DatasetReader(out)) == len(LABELS) + 2
+
+
+def test_merge_cli_grammar(dataset, tmp_path):
+    from typer.testing import CliRunner
+
+    from surrol_data.cli import app
+
+    root, _ = dataset
+    other, _ = make_dataset(tmp_path / "other", labels=LABELS[:1], first_seed=60)
+    runner = CliRunner()
+    new = runner.invoke(app, ["merge", str(root), str(other), "--out", str(tmp_path / "new")])
+    assert new.exit_code == 0, new.output
+    old = runner.invoke(app, ["merge", str(tmp_path / "old"), str(root), str(other)])
+    assert old.exit_code == 0 and "deprecated" in old.output and len(DatasetReader(tmp_path / "old")) == 7
+    missing = runner.invoke(app, ["merge", str(root), str(other)])
+    assert missing.exit_code == 2 and "--out OUT" in missing.output
+    twice = runner.invoke(app, ["merge", str(root), str(root), "--out", str(tmp_path / "twice")])
+    said = " ".join(twice.output.split())
+    assert twice.exit_code == 2 and "given more than once" in said and "--drop-duplicates" in said
+    assert not (tmp_path / "twice").exists()

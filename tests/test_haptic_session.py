@@ -111,10 +111,10 @@ def test_cli_simulated_operator_session_and_its_replay(tmp_path):
     runner = CliRunner()
     recorded, replayed = tmp_path / "operator", tmp_path / "replayed"
     r = runner.invoke(app, ["collect", "--source", "haptic", "--device", "operator", "--skill", "expert",
-                            "--operator-id", "sim-e1", "--task", "NeedlePick", "--episodes", "2", "--out", str(recorded)])
+                            "--operator-id", "sim-e1", "--task", "NeedlePick", "--num-episodes", "2", "--out", str(recorded)])
     assert r.exit_code == 0, r.output
     r = runner.invoke(app, ["collect", "--source", "haptic", "--device", "replay", "--trace", str(recorded),
-                            "--task", "NeedlePick", "--episodes", "2", "--out", str(replayed)])
+                            "--task", "NeedlePick", "--num-episodes", "2", "--out", str(replayed)])
     assert r.exit_code == 0, r.output
     a, b = DatasetReader(recorded), DatasetReader(replayed)
     assert len(a) == len(b) == 2
@@ -134,10 +134,10 @@ def test_cli_simulated_operator_session_and_its_replay(tmp_path):
 def test_cli_haptic_errors_are_clear(tmp_path):
     runner = CliRunner()
     r = runner.invoke(app, ["collect", "--source", "haptic", "--device", "operator", "--task", "NeedlePick",
-                            "--episodes", "1", "--out", str(tmp_path / "x")])
+                            "--num-episodes", "1", "--out", str(tmp_path / "x")])
     assert r.exit_code == 2 and "--skill expert or --skill novice" in r.output
     r = runner.invoke(app, ["collect", "--source", "haptic", "--device", "touch", "--task", "NeedlePick",
-                            "--episodes", "1", "--out", str(tmp_path / "y"), "--mapping", "motion_scale=fast"])
+                            "--num-episodes", "1", "--out", str(tmp_path / "y"), "--mapping", "motion_scale=fast"])
     assert r.exit_code == 2 and "not a number" in r.output
 
 
@@ -145,7 +145,7 @@ def test_cli_haptic_errors_are_clear(tmp_path):
 def test_sigkill_loses_at_most_the_episode_in_progress(tmp_path):
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "surrol_data.cli", "collect", "--source", "haptic", "--device", "operator",
-           "--skill", "novice", "--operator-id", "n1", "--task", "NeedlePick", "--episodes", "50", "--out", str(out)]
+           "--skill", "novice", "--operator-id", "n1", "--task", "NeedlePick", "--num-episodes", "50", "--out", str(out)]
     proc = subprocess.Popen(cmd, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     info = out / "meta" / "info.json"
     try:
@@ -170,7 +170,7 @@ def test_sigkill_loses_at_most_the_episode_in_progress(tmp_path):
     assert reader.episodes["success"].all()
     before = len(reader)
     r = CliRunner().invoke(app, ["collect", "--source", "haptic", "--device", "operator", "--skill", "novice",
-                                 "--operator-id", "n1", "--task", "NeedlePick", "--episodes", "1", "--seed", "100",
+                                 "--operator-id", "n1", "--task", "NeedlePick", "--num-episodes", "1", "--seed", "100",
                                  "--out", str(out), "--append"])
     assert r.exit_code == 0, r.output
     assert len(DatasetReader(out)) == before + 1

@@ -130,7 +130,7 @@ def test_device_contract_and_bad_input(pick_env):
     with pytest.raises(ValueError, match="seed"):
         SimulatedOperator(env, "expert", "ann", MappingSettings(), seed=-1)
     cartpole = gym.make("CartPole-v1")
-    with pytest.raises(ValueError, match="single-PSM"):
+    with pytest.raises(ValueError, match="drives PSM, bimanual and ECM tasks"):
         SimulatedOperator(cartpole.unwrapped, "expert", "ann", MappingSettings(), seed=0)
     cartpole.close()
 

@@ -50,7 +50,7 @@ def test_wheel_installed_outside_the_repo_trains_and_runs_the_demo(tmp_path):
     work.mkdir()
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
     cli = venv / "bin" / "surrol-data"
-    demo = subprocess.run([str(cli), "demo", "--out", "demo", "--episodes", "3", "--eval-episodes", "2"], cwd=work,
+    demo = subprocess.run([str(cli), "demo", "--out", "demo", "--num-episodes", "3", "--eval-episodes", "2"], cwd=work,
                           env=env, capture_output=True, text=True, timeout=1200)
     assert demo.returncode == 0, demo.stdout[-2000:] + demo.stderr[-2000:]
     train = subprocess.run([str(cli), "train", "task=NeedleReach", "demos=none", "algo=ddpg", "experiment=smoke",

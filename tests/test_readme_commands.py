@@ -1,5 +1,5 @@
 """Every ``surrol-data`` command of the README runs as written — with small sizes (at most 20 collected and 5
-evaluation episodes, training on ``experiment=smoke``), in a scratch folder, each ``bash`` block in README order.
+evaluation episodes, training on ``experiment=smoke``, a study on ``table1_quick``), in a scratch folder, each ``bash`` block in README order.
 
 Left out: the install lines (``pip install uv``, the test suite itself) and the SLURM sweep (no cluster
 here; its composed config is still checked with ``--cfg job``).
@@ -7,6 +7,7 @@ here; its composed config is still checked with ``--cfg job``).
 
 from __future__ import annotations
 
+import itertools
 import os
 import re
 import shlex
@@ -18,7 +19,10 @@ from pathlib import Path
 import pytest
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
-CAP = {"collect": 20, "eval": 5}  # --episodes at most (20 keeps `split --valid-fraction 0.1` meaningful)
+CAP = {"collect": 20, "eval": 5}  # --num-episodes at most (20 keeps `split --valid-fraction 0.1` meaningful)
+
+
+_OUTPUTS = itertools.count()
 
 
 def readme_blocks() -> list[list[str]]:
@@ -43,10 +47,13 @@ def adapt(command: str, home: Path) -> list[str] | None:
         return None
     if args[1] == "train" and "--cfg" not in args:
         args.append("experiment=smoke")
+    if args[1] == "study":   # the Table I study takes hours: the same pipeline on its tiny config, one seed
+        args[2] = "table1_quick"
+        args += ["--override", "experiment.study.seeds=[0]"]
     if args[1] == "demo":
-        args += ["--out", "demo_out", "--episodes", "3", "--eval-episodes", "2"]
+        args += ["--out", "demo_out", "--num-episodes", "3", "--eval-episodes", "2"]
     for i, arg in enumerate(args[:-1]):
-        if arg == "--episodes" and args[1] in CAP:
+        if arg in ("--num-episodes", "--episodes") and args[1] in CAP:
             args[i + 1] = str(min(int(args[i + 1]), CAP[args[1]]))
     filled = []
     for arg in args:
@@ -56,8 +63,8 @@ def adapt(command: str, home: Path) -> list[str] | None:
             filled.append({"DIR1": "datasets/NeedlePick_script", "DIR2": "datasets/NeedlePick_human"}[arg])
         elif arg == "...":
             continue
-        elif arg == "OUT":
-            filled.append(f"out_{args[1]}")
+        elif arg == "OUT":  # numbered: the README may write with one command twice (e.g. two filter examples)
+            filled.append(f"out_{args[1]}_{next(_OUTPUTS)}")
         else:
             filled.append(arg)
     return filled

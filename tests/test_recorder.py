@@ -17,6 +17,7 @@ from surrol_data.collect.recorder import DatasetRecorder, repair
 from surrol_data.datasets.reader import DatasetError, DatasetReader, unreadable_parquet_files
 from surrol_data.datasets.schema import (
     PROVENANCE_COLUMNS,
+    SCHEMA_VERSION,
     ProvenanceError,
     frame_features,
     normalize_provenance,
@@ -89,7 +90,12 @@ def test_frame_features_shapes_and_names():
     assert f["action"]["names"][:5] == ["psm1_dx", "psm1_dy", "psm1_dz", "psm1_dyaw", "psm1_jaw"]
     assert f["complementary_info.tip_position"]["shape"] == (6,)
     assert f["complementary_info.jaw_angle"]["names"] == ["psm1_jaw", "psm2_jaw"]
-    assert f["next.done"] == {"dtype": "bool", "shape": (1,), "names": None}
+    assert f["next.done"] == {"dtype": "bool", "shape": (1,), "names": ["done"]}
+    assert f["next.truncated"] == {"dtype": "bool", "shape": (1,), "names": ["truncated"]}
+    assert f["observation.environment_state"]["names"] == ["achieved_x", "achieved_y", "achieved_z",
+                                                           "goal_x", "goal_y", "goal_z"]
+    assert not any(k.endswith("_goal") for k in f)  # the goals are the halves of the environment state
+    assert all(len(ft["names"]) == ft["shape"][0] for k, ft in f.items() if ft["dtype"] != "video")
     assert f["observation.images.front"]["shape"] == (64, 48, 3)
     assert not any(k.startswith("observation.") and "tip" in k for k in f)  # bookkeeping is not a policy input
     with pytest.raises(ValueError, match="obs_dim"):
@@ -149,6 +155,10 @@ def test_write_then_lerobot_loads_offline(written, LeRobotDataset):
     assert item["task"] == "pick up the needle"
     last = ds[len(trajs[0]) - 1]  # last frame of episode 0 carries s_T
     assert np.array_equal(last["next.observation.state"].numpy(), trajs[0].observation[-1])
+    # object and goal state where LeRobot policies look for it; truncation marked on the last frame only
+    assert np.array_equal(item["observation.environment_state"].numpy(),
+                          np.concatenate([trajs[0].achieved_goal[0], trajs[0].desired_goal[0]]))
+    assert not bool(item["next.truncated"]) and bool(last["next.truncated"]) != bool(trajs[0].terminated[-1])
 
     experts = LeRobotDataset("local/needle", root=root, video_backend="pyav",
                              episode_filter=lambda e: e["provenance/skill"] == "expert")
@@ -159,7 +169,7 @@ def test_write_then_lerobot_loads_offline(written, LeRobotDataset):
 def test_sidecar_and_card(written):
     root, trajs, _ = written
     side = json.loads((root / "meta" / "surrol_data.json").read_text())
-    assert side["schema_version"] == 1 and side["env_id"] == "SurRoL/NeedlePick-v0" and side["fps"] == 5
+    assert side["schema_version"] == SCHEMA_VERSION == 2 and side["env_id"] == "SurRoL/NeedlePick-v0" and side["fps"] == 5
     assert side["sessions"][-1]["episodes"] == 5 and side["checkpoint"]["episodes"] == 5
     card = (root / "README.md").read_text()
     from huggingface_hub import DatasetCard
@@ -176,7 +186,7 @@ def test_append_resumes_and_checks(written, LeRobotDataset, tmp_path):
 
     root = tmp_path / "needle"
     shutil.copytree(written[0], root)
-    with pytest.raises(FileExistsError, match="append=True"):
+    with pytest.raises(FileExistsError, match="--append"):
         DatasetRecorder(root, features=frame_features(OBS, GOAL, 5, 1), **RECORDER_ARGS)
     with pytest.raises(ValueError, match="observation.state: given float32\\(9,\\), dataset has float32\\(7,\\)"):
         DatasetRecorder(root, features=frame_features(9, GOAL, 5, 1), append=True, **RECORDER_ARGS)

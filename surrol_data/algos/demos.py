@@ -36,7 +36,7 @@ def load_demos(spec: DemoSpec, env_id: str | None = None) -> tuple[list[Trajecto
     if not root.exists():
         raise FileNotFoundError(
             f"demo dataset {root} does not exist. Record one, e.g. `surrol-data collect --source script "
-            f"--task NeedlePick --episodes 100 --out {root}`, or point demos.path at an existing dataset")
+            f"--task NeedlePick --num-episodes 100 --out {root}`, or point demos.path at an existing dataset")
     from surrol_data.datasets.guard import require_valid
 
     require_valid(root)  # cheap checks: never train on a damaged or half-written dataset

@@ -35,11 +35,13 @@ from tqdm import tqdm
 from surrol_data.collect.devices import HUMAN_DEVICES, Device, DeviceError, open_device
 from surrol_data.collect.devices.trace import mapping_from_dict, trace_path, write_trace
 from surrol_data.collect.mapping import ActionMapper, MappedStep, MappingSettings
+from surrol_data.collect.operator import SimulatedOperator
 from surrol_data.collect.recorder import DatasetRecorder
-from surrol_data.collect.script_source import features_for, first_seed
+from surrol_data.collect.script_source import features_for, first_seed, make_env
 from surrol_data.datasets.trajectory import TrajectoryBuilder
 from surrol_data.envs import env_id as make_env_id
-from surrol_data.envs.units import CONTROL_PERIOD_S
+from surrol_data.envs.names import dimension_names
+from surrol_data.envs.units import ACTION_POSITION_M, ACTION_YAW_RAD, CONTROL_PERIOD_S
 
 # SurRoL-v2 recorded human NeedlePick demos with a 150-step horizon, 3× the scripted 50: people need the margin.
 HUMAN_HORIZON_FACTOR = 3
@@ -76,7 +78,7 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
                    rerun_live: str | None = None, max_attempts: int | None = None, progress: bool = True,
                    command: str | None = None, library: str | Path | None = None,
                    realtime: bool | None = None, key_tracker=None, on_step=None,
-                   env_kwargs: dict | None = None) -> HapticResult:
+                   env_kwargs: dict | None = None, profile: str | None = None) -> HapticResult:
     """Record ``episodes`` kept teleoperated episodes of ``task`` into the dataset at ``out``.
 
     ``device``: a name of :data:`surrol_data.collect.devices.DEVICE_NAMES` (one device per arm is built with
@@ -89,12 +91,25 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
     for human devices only). ``key_tracker``: the key source of a host window (the training GUI) for keyboard
     devices and the session keys. ``on_step(env, step, obs, info, flags)``: called after every env step
     (``step`` counts from 1 in each attempt), e.g. to draw a frame. ``env_kwargs``: extra ``gym.make`` arguments.
+    ``profile``: the simulated operator's profile when not the skill's natural one, e.g. ``expert_matched`` (see
+    :data:`surrol_data.collect.operator.profiles.MATCHED_PROFILES`); its skill must be ``skill``.
     """
     if episodes <= 0:
-        raise ValueError(f"--episodes must be positive, got {episodes}")
+        raise ValueError(f"the number of episodes must be positive, got {episodes}")
     if skill not in SKILLS:
         raise ValueError(f"--skill must be one of {', '.join(SKILLS)}, got {skill!r}")
     names = [device] if isinstance(device, str) else [d.name for d in device]
+    if profile is not None:
+        from surrol_data.collect.operator.profiles import ALL_PROFILES
+
+        if names != ["operator"]:
+            raise ValueError(f"--profile chooses a simulated operator's profile; it needs --device operator, not {names}")
+        if profile not in ALL_PROFILES:
+            raise ValueError(f"unknown operator profile {profile!r}; choose one of {sorted(ALL_PROFILES)}")
+        if skill == "unknown":
+            skill = ALL_PROFILES[profile].skill
+        if ALL_PROFILES[profile].skill != skill:
+            raise ValueError(f"profile {profile!r} is a {ALL_PROFILES[profile].skill} profile, but --skill is {skill!r}")
     if isinstance(device, str) and device == "operator" and skill == "unknown":
         raise ValueError("the simulated operator needs --skill expert or --skill novice")
     human = any(n in HUMAN_DEVICES for n in names)
@@ -109,12 +124,12 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
     seed = first_seed(out, append, seed, "haptic")
     registered = gym.spec(eid).max_episode_steps
     replay_horizon = _replay_horizon(trace) if names == ["replay"] else None
-    horizon = max_steps or replay_horizon or HUMAN_HORIZON_FACTOR * registered
-    env = gym.make(eid, max_episode_steps=horizon, **({"render_mode": "human"} if gui else {}), **(env_kwargs or {}))
+    horizon = max_steps or replay_horizon or _human_horizon(eid, registered)
+    env = make_env(eid, env_kwargs or {}, max_episode_steps=horizon, **({"render_mode": "human"} if gui else {}))
     try:
         return _Session(env, eid, episodes, out, device, names, operator_id, skill, sides, mapping, trace, seed,
                         horizon, keep_failures, append, gui, rerun_live, max_attempts or 3 * episodes, progress,
-                        command, library, realtime, key_tracker, on_step).run()
+                        command, library, realtime, key_tracker, on_step, profile).run()
     finally:
         env.close()
 
@@ -146,6 +161,20 @@ def parse_mapping(overrides: Sequence[str], base: MappingSettings | None = None)
     return mapping_from_dict(values)
 
 
+def _human_horizon(eid: str, registered: int) -> int:
+    """A person's horizon: HUMAN_HORIZON_FACTOR × the registered one in time, not steps (an ECM task's 0.1 s steps
+    get twice as many), and twice that where two hands take turns (one waits while the other works)."""
+    from importlib import import_module
+
+    from surrol_data.envs.physics import ECM_CONTROL_PERIOD_S
+
+    module, name = gym.spec(eid).entry_point.split(":")
+    action_dim = getattr(import_module(module), name).ACTION_DIM
+    if action_dim % 5:      # an ECM task: one camera, 0.1 s steps
+        return round(HUMAN_HORIZON_FACTOR * registered * CONTROL_PERIOD_S / ECM_CONTROL_PERIOD_S)
+    return HUMAN_HORIZON_FACTOR * registered * (action_dim // 5)
+
+
 def _replay_horizon(trace) -> int | None:
     from surrol_data.collect.devices.trace import read_trace, trace_files
 
@@ -159,7 +188,7 @@ class _Session:
 
     def __init__(self, env, eid, episodes, out, device, names, operator_id, skill, sides, mapping, trace, seed,
                  horizon, keep_failures, append, gui, rerun_live, max_attempts, progress, command, library,
-                 realtime, key_tracker=None, on_step=None):
+                 realtime, key_tracker=None, on_step=None, profile=None):
         self.env, self.eid, self.episodes, self.out = env, eid, episodes, Path(out)
         self.task = eid.split("/")[1].rsplit("-v", 1)[0]
         self.operator_id, self.skill, self.seed, self.horizon = operator_id, skill, seed, horizon
@@ -188,19 +217,29 @@ class _Session:
                                                None) or self._key_tracker(names)
         if isinstance(device, str):
             self.devices = [open_device(device, arm=i, side=sides[i], env=env.unwrapped, mapping=self.mappings[i],
-                                        skill=skill, operator_id=operator_id, seed=seed, trace=trace,
+                                        skill=profile or skill, operator_id=operator_id, seed=seed, trace=trace,
                                         key_tracker=self.key_tracker, library=library)
                             for i in range(n_devices)]
         else:
             self.devices = list(device)
             if len(self.devices) != n_devices:
                 raise ValueError(f"{self.task} needs {n_devices} device(s), {len(self.devices)} given")
+        operators = [d for d in self.devices if isinstance(d, SimulatedOperator)]
+        if len(operators) > 1:   # two simulated hands on a bimanual task: one person
+            SimulatedOperator.work_together(operators)
+        # ECM tasks: the camera moves by camera_motion_scale × the hand motion and rolls by rotation_scale × the
+        # hand roll. The mapping's actions assume the PSM's units (1 = 1 cm, 30°); an ECM task may use others
+        # (StaticTrack's 1 mm, MisOrient's 3°), declared as ACTION_TRANSLATION_M / ACTION_ROTATION_RAD.
+        task_env = env.unwrapped
+        self.camera_rescale = np.array([*[ACTION_POSITION_M / getattr(task_env, "ACTION_TRANSLATION_M",
+                                                                      ACTION_POSITION_M)] * 3,
+                                        ACTION_YAW_RAD / getattr(task_env, "ACTION_ROTATION_RAD", ACTION_YAW_RAD)])
         self.replay = all(d.name == "replay" for d in self.devices)
         self.realtime = any(getattr(d, "realtime", False) for d in self.devices) if realtime is None else realtime
         self.live = _LiveStream(rerun_live, self.task) if rerun_live else None
         self.recorder = DatasetRecorder(self.out, task=self.task, env_id=eid, task_description=env.unwrapped.TASK,
                                         features=features_for(env), append=append, command=command,
-                                        checkpoint_every=1)
+                                        checkpoint_every=1, robot_type=dimension_names(env).robot_type)
         self.result = HapticResult(root=self.out)
 
     def _key_tracker(self, names):
@@ -285,6 +324,10 @@ class _Session:
         settings = [t.mapping(i) for i, t in enumerate(replayed)] if replayed else self.mappings
         mappers = [ActionMapper(m) for m in settings]
         obs, info = env.reset(seed=attempt_seed)
+        held = np.asarray(info.get("grasped", False)).reshape(-1)
+        for mapper, holds in zip(mappers, held):
+            if holds:    # the task starts with the object in this hand: the jaw command starts closed
+                mapper.jaw = -1.0
         builder = TrajectoryBuilder(obs, info["tip_position"], info["jaw_angle"])
         frames: list[list] = [[] for _ in self.devices]
         after_success = None
@@ -314,7 +357,7 @@ class _Session:
             obs, reward, terminated, truncated, info = env.step(action)
             flags = {"clutch": any(s.clutch for s in steps), "jaw_button": any(s.jaw_button for s in steps)}
             builder.add(action, obs, reward, info["is_success"], terminated, info["tip_position"], info["jaw_angle"],
-                        flags=flags)
+                        flags=flags, info=info)
             if self.live:
                 self.live.step(k, obs, action, info, flags)
             if self.on_step is not None:
@@ -335,6 +378,7 @@ class _Session:
             # ECM tasks are driven by the device without holding both buttons: its motion at the camera scale.
             camera = s.camera if s.camera_mode else np.concatenate(
                 [s.arm[:3] * settings.camera_motion_scale / settings.motion_scale, s.arm[3:4]])
+            camera = camera * self.camera_rescale
             dim = space.shape[0]
             action = camera[3:4] if dim == 1 else camera[:dim]
         else:

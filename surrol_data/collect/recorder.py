@@ -38,7 +38,7 @@ Speed (``benchmarks/dataset_io.py``): a state-only episode is handed to lerobot 
 ``save_episode(episode_data=...)`` takes, instead of T ``add_frame`` calls that would re-validate every
 frame (:meth:`DatasetRecorder._frame_arrays` has already checked every dtype and shape); camera episodes
 still go through ``add_frame``, which stages the PNGs lerobot's video encoder reads. A checkpoint closes
-the open parquet files and points lerobot's writers at new ones (:func:`_close_files_and_continue`) instead
+the open parquet files and points lerobot's writers at new ones (:func:`lerobot_compat.close_files_and_continue`) instead
 of ``finalize`` + ``resume``, whose reload of the episodes table costs ~1 s and grows with the dataset; the
 files on disk are the same as after a resume. LeRobot's ``save_episode`` also spends most of its remaining
 time in ``embed_images`` — a per-row ``datasets.map`` that only matters for ``image`` features (PNG bytes
@@ -70,6 +70,7 @@ import pyarrow.parquet as pq
 from surrol_data.collect import journal
 from surrol_data.datasets.card import write_dataset_card
 from surrol_data.datasets.hub_offline import hub_offline, quiet_video_encoder
+from surrol_data.datasets import lerobot_compat
 from surrol_data.datasets.info import read_sidecar
 from surrol_data.datasets.lock import DatasetLock
 from surrol_data.datasets.reader import (
@@ -81,74 +82,30 @@ from surrol_data.datasets.reader import (
     unreadable_parquet_files,
 )
 from surrol_data.datasets.schema import (
+    ENV_STATE,
     FPS,
+    NEXT_ENV_STATE,
     PROVENANCE_COLUMNS,
     PROVENANCE_PREFIX,
     SCHEMA_VERSION,
     SIDECAR_PATH,
     content_hash,
     dims_from_features,
+    is_schema1,
     normalize_provenance,
     package_version,
     utc_now_iso,
 )
-from surrol_data.datasets.trajectory import DEVICE_FLAGS, Trajectory
+from surrol_data.datasets.trajectory import DEVICE_FLAGS, EVENT_FLAGS, Trajectory
 
-ROBOT_TYPE = "dvrk_psm"
+ROBOT_TYPE = "dvrk_psm"  # the default; collectors pass surrol_data.envs.names.dimension_names(env).robot_type
 VIDEO_BACKEND = "pyav"  # explicit: avoids torchcodec probing (and its 60-line warning without system ffmpeg)
 REPAIR_DIR = ".surrol_data_repair"
 
 
 def _lerobot_dataset_class():
-    """``LeRobotDataset``, imported on first use (~6 s, ~0.9 GB). Open local datasets under
-    :func:`surrol_data.datasets.hub_offline.hub_offline`."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
-    return LeRobotDataset
-
-
-def _install_fast_save() -> None:
-    """Skip lerobot's per-row ``embed_images`` map for episodes without ``image`` features (see module doc)."""
-    from lerobot.datasets import dataset_writer
-
-    original = getattr(dataset_writer, "embed_images", None)
-    if original is None or getattr(original, "_surrol_guard", False):
-        return  # lerobot changed (nothing to patch) or already guarded
-    import datasets
-
-    def embed_images_if_any(dataset):
-        if any(isinstance(ft, datasets.Image) for ft in dataset.features.values()):
-            return original(dataset)
-        return dataset
-
-    embed_images_if_any._surrol_guard = True
-    dataset_writer.embed_images = embed_images_if_any
-
-
-def _close_files_and_continue(ds) -> bool:
-    """Checkpoint without reloading: close the data and episodes parquet files (writing their footers) and
-    point lerobot's writer at new files for the next episode, exactly where ``resume()`` would.
-
-    ``resume()`` reloads the whole episodes table through ``datasets`` (~1 s, growing with the dataset); this
-    keeps the in-memory metadata instead. It relies on lerobot 0.6's writer state (the same fields resume
-    sets up); returns False, touching nothing, when that state is not there, and the caller resumes instead.
-    """
-    writer, meta = getattr(ds, "writer", None), getattr(ds, "meta", None)
-    needed = (hasattr(writer, "close_writer") and hasattr(writer, "_latest_episode")
-              and hasattr(meta, "_close_writer") and hasattr(meta, "latest_episode") and hasattr(meta, "episodes"))
-    if not needed or getattr(writer, "_batch_encoding_size", 1) != 1 or getattr(writer, "_streaming_encoder", None):
-        return False
-    if meta.latest_episode is None:
-        return True  # nothing written since the last checkpoint: every file is already closed
-    writer.flush_pending_videos()
-    writer.close_writer()
-    meta._close_writer()  # flushes the buffered episode rows, then writes the footer
-    # With no "latest episode", lerobot's writers take the last row of meta.episodes and start the next
-    # chunk/file after it, for data, episodes metadata and videos alike — what they do after resume().
-    meta.episodes = [{k: v[0] if isinstance(v, list) else v for k, v in meta.latest_episode.items()}]
-    meta.latest_episode = None
-    writer._latest_episode = None
-    return True
+    """``LeRobotDataset`` (see :func:`surrol_data.datasets.lerobot_compat.lerobot_dataset_class`)."""
+    return lerobot_compat.lerobot_dataset_class()
 
 
 def git_commit() -> str:
@@ -226,7 +183,7 @@ class DatasetRecorder:
             shutil.rmtree(self.root)
             self._exists = False
         if self._exists and not append:
-            raise FileExistsError(f"{self.root} already exists: pass append=True to add episodes to it, "
+            raise FileExistsError(f"{self.root} already exists: add episodes to it with --append, "
                                   "or choose a new folder")
         if self._exists:
             if not (self.root / INFO_PATH).exists():
@@ -237,9 +194,13 @@ class DatasetRecorder:
 
                 ensure_finished(self.root)  # a killed recording is repaired first (with a message)
             existing = json.loads((self.root / INFO_PATH).read_text())["features"]
+            if is_schema1(existing):
+                raise DatasetError(f"{self.root} was written with surrol_data schema 1: run `surrol-data upgrade "
+                                   f"{self.root}` before adding episodes to it")
             if features is not None:
                 ours = {k: v for k, v in existing.items() if k not in _LEROBOT_DEFAULT_FEATURES}
-                problems = _features_mismatch(features, ours)
+                optional = {f"complementary_info.{e}" for e in EVENT_FLAGS} - set(ours)
+                problems = _features_mismatch({k: v for k, v in features.items() if k not in optional}, ours)
                 if problems:
                     raise ValueError(f"cannot append to {self.root}: features differ — " + "; ".join(problems))
             sidecar = read_sidecar(self.root)
@@ -282,7 +243,7 @@ class DatasetRecorder:
             return
         LeRobotDataset = _lerobot_dataset_class()
         if self.fast_save:
-            _install_fast_save()
+            lerobot_compat.install_fast_save()
         self._git_commit = git_commit()
         if self._exists:
             self._lock.acquire()  # before touching anything: a second writer gets a clear error
@@ -334,20 +295,13 @@ class DatasetRecorder:
             self._restore_signal_handlers()
 
     def _prepare_writer(self) -> None:
-        ds = self._ds
-        # resume() has no metadata_buffer_size argument and defaults to 10; flush every episode instead.
-        ds.meta._metadata_buffer_size = 1
-        original = ds.meta.save_episode
+        lerobot_compat.attach_episode_columns(self._ds, self._episode_columns)
 
-        def save_episode_with_provenance(episode_index, episode_length, episode_tasks, episode_stats,
-                                         episode_metadata):
-            if self._pending_columns is None:
-                raise RuntimeError("episode saved without provenance: use DatasetRecorder.record, not "
-                                   "the LeRobotDataset directly")
-            episode_metadata = {**episode_metadata, **self._pending_columns}
-            return original(episode_index, episode_length, episode_tasks, episode_stats, episode_metadata)
-
-        ds.meta.save_episode = save_episode_with_provenance
+    def _episode_columns(self) -> dict:
+        if self._pending_columns is None:
+            raise RuntimeError("episode saved without provenance: use DatasetRecorder.record, not "
+                               "the LeRobotDataset directly")
+        return self._pending_columns
 
     # ------------------------------------------------------------------ signals
 
@@ -459,7 +413,7 @@ class DatasetRecorder:
         if self._ds is None:
             raise RuntimeError("DatasetRecorder is not open")
         with self._hold_signals():
-            if not _close_files_and_continue(self._ds):
+            if not lerobot_compat.close_files_and_continue(self._ds):
                 self._ds.finalize()
                 with hub_offline():
                     self._ds = _lerobot_dataset_class().resume(self.repo_id, root=self.root,
@@ -472,14 +426,7 @@ class DatasetRecorder:
             journal.drop_below(self.root, self._durable)
 
     def _episode_buffer(self, frames: dict[str, np.ndarray], T: int, episode_index: int) -> dict:
-        """The pre-built frame buffer ``save_episode(episode_data=...)`` takes: what add_frame would accumulate."""
-        frame_index = np.arange(T, dtype=np.int64)
-        buffer = {"size": T, "task": [self.task_description] * T, "episode_index": episode_index,
-                  "frame_index": frame_index, "timestamp": (frame_index / FPS).astype(np.float32),
-                  # placeholders: save_episode assigns the global index and the task index itself
-                  "index": frame_index, "task_index": np.zeros(T, dtype=np.int64)}
-        buffer.update(frames)
-        return buffer
+        return lerobot_compat.episode_buffer(frames, T, episode_index, self.task_description, FPS)
 
     def _frame_arrays(self, traj: Trajectory) -> dict[str, np.ndarray]:
         """Per-feature (T, ...) arrays with the exact dtype/shape add_frame demands (checked here, clearly)."""
@@ -503,23 +450,33 @@ class DatasetRecorder:
         dg = vec("desired_goal", traj.desired_goal, T + 1, d["goal_dim"])
         tip = vec("tip_position", traj.tip_position, T + 1, 3 * d["n_arms"])
         jaw = vec("jaw_angle", traj.jaw_angle, T + 1, d["n_arms"])
-        extra = sorted(set(traj.flags) - set(DEVICE_FLAGS))
+        extra = sorted(set(traj.flags) - set(DEVICE_FLAGS) - set(EVENT_FLAGS))
         if extra:
             raise ValueError(f"Trajectory.flags {extra} are not in the dataset schema (only {list(DEVICE_FLAGS)})")
+        environment = np.concatenate([ag, dg], axis=1)  # object/goal state: achieved goal, then desired goal
+        terminated = vec("terminated", traj.terminated, T, 1, bool)
+        truncated = np.zeros((T, 1), bool)
+        truncated[-1, 0] = not terminated[-1, 0]  # the episode ended here without the MDP ending
         frames = {
-            "observation.state": obs[:-1], "observation.achieved_goal": ag[:-1],
-            "observation.desired_goal": dg[:-1],
+            "observation.state": obs[:-1], ENV_STATE: environment[:-1],
             "action": vec("action", traj.action, T, d["act_dim"]),
             "next.reward": vec("reward", traj.reward, T, 1),
-            "next.done": vec("terminated", traj.terminated, T, 1, bool),
+            "next.done": terminated, "next.truncated": truncated,
             "next.success": vec("success", traj.success, T, 1, bool),
-            "next.observation.state": obs[1:], "next.observation.achieved_goal": ag[1:],
-            "next.observation.desired_goal": dg[1:],
+            "next.observation.state": obs[1:], NEXT_ENV_STATE: environment[1:],
             "complementary_info.tip_position": tip[:-1], "complementary_info.jaw_angle": jaw[:-1],
             "complementary_info.next_tip_position": tip[1:], "complementary_info.next_jaw_angle": jaw[1:],
         }
         for flag in DEVICE_FLAGS:
             frames[f"complementary_info.{flag}"] = vec(f"flags[{flag!r}]", traj.flags[flag], T, 1, bool)
+        for event in EVENT_FLAGS:   # optional features: recorded where the dataset has them
+            key = f"complementary_info.{event}"
+            if key not in self.features:
+                continue
+            if event not in traj.flags:
+                raise ValueError(f"{self.root} records env events but the trajectory has no {event!r} flags; build "
+                                 "it with TrajectoryBuilder.add(..., info=info) at every step")
+            frames[key] = vec(f"flags[{event!r}]", traj.flags[event], T, int(self.features[key]["shape"][0]), bool)
         cameras = d["cameras"]
         if set(traj.images) != set(cameras):
             raise ValueError(f"Trajectory.images has cameras {sorted(traj.images)}, the dataset has "

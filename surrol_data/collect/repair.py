@@ -338,6 +338,7 @@ def _replay(root: Path, info: dict, salvage: list, report: RepairReport) -> None
     renames = []
     recorder = DatasetRecorder(target, features=None if kept else features, task=task, env_id=env_id,
                                task_description=description, append=bool(kept), repo_id=side.get("repo_id"),
+                               robot_type=info.get("robot_type") or side.get("robot_type") or "dvrk_psm",
                                command=side.get("sessions", [{}])[-1].get("command", "surrol-data repair"),
                                handle_signals=False, checkpoint_every=10_000, checkpoint_interval_s=None,
                                _repairing=True)
@@ -439,8 +440,7 @@ def _rewrite_metadata(root: Path, info: dict, kept_rows: list[dict]) -> None:
                 stats.setdefault(feature, {})[stat] = np.asarray(value)
         episode_stats.append(stats)
     if episode_stats:
-        from lerobot.datasets.compute_stats import aggregate_stats
-        from lerobot.datasets.io_utils import write_stats
+        from surrol_data.datasets.lerobot_compat import aggregate_stats, write_stats
 
         write_stats(aggregate_stats(episode_stats), root)
     elif (root / "meta" / "stats.json").exists():

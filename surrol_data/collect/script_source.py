@@ -2,16 +2,20 @@
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import gymnasium as gym
+import numpy as np
 from tqdm import tqdm
 
 from surrol_data.collect.recorder import DatasetRecorder
-from surrol_data.datasets.schema import frame_features
+from surrol_data.datasets.schema import event_features, frame_features
+from surrol_data.datasets.trajectory import ENV_CAMERA
 from surrol_data.envs import env_id as make_env_id
+from surrol_data.envs.names import dimension_names
 from surrol_data.evaluation.rollout import ORACLE, rollout
 
 
@@ -29,10 +33,33 @@ class CollectResult:
 
 
 def features_for(env: gym.Env) -> dict:
+    """The dataset features of ``env``'s episodes; an env made with ``camera=True`` adds the endoscope video."""
     spaces = env.observation_space
-    n_arms = env.action_space.shape[0] // 5
-    return frame_features(obs_dim=spaces["observation"].shape[0], goal_dim=spaces["desired_goal"].shape[0],
-                          act_dim=env.action_space.shape[0], n_arms=n_arms)
+    names = dimension_names(env)   # one tool per PSM; an ECM task's one tool is the camera
+    cameras = {ENV_CAMERA: tuple(spaces["image"].shape[:2])} if "image" in spaces.spaces else None
+    features = frame_features(obs_dim=spaces["observation"].shape[0], goal_dim=spaces["desired_goal"].shape[0],
+                              act_dim=env.action_space.shape[0], n_arms=names.n_arms, state_names=names.state,
+                              achieved_goal_names=names.achieved_goal, desired_goal_names=names.desired_goal,
+                              action_names=names.action, cameras=cameras)
+    if hasattr(env.unwrapped, "grasp") or hasattr(env.unwrapped, "grasps"):   # the env reports grasps and drops
+        features.update(event_features(names.n_arms))
+    return features
+
+
+def camera_kwargs(camera_size: tuple[int, int] | None) -> dict:
+    """``gym.make`` arguments that add the endoscope image (``camera_size`` = (width, height)) to the observation."""
+    return {} if camera_size is None else {"camera": True, "camera_size": tuple(int(v) for v in camera_size)}
+
+
+def make_env(eid: str, env_kwargs: dict, **kwargs) -> gym.Env:
+    """``gym.make(eid, ...)``; a camera asked of a task that has none is a clear error, not a TypeError."""
+    try:
+        return gym.make(eid, **kwargs, **env_kwargs)
+    except TypeError as e:
+        if "camera" in env_kwargs and "camera" in str(e):
+            raise ValueError(f"{eid} has no endoscope camera option (ECM tasks are the camera); record it without "
+                             "--camera") from None
+        raise
 
 
 def first_seed(out: str | Path, append: bool, seed: int | None, source: str) -> int:
@@ -54,35 +81,66 @@ def first_seed(out: str | Path, append: bool, seed: int | None, source: str) -> 
     return int(seeds.max()) + 1 if len(seeds) else 0
 
 
+class PacedOracle:
+    """The task's oracle at a fraction ``speed`` of its pace: its motion (position and rotation) scaled by
+    ``speed``, its jaw command as is. The oracle is closed-loop, so it still reaches every waypoint, in about
+    1/speed as many steps along about the same path. The paper matched its script demos to its human ones
+    (109 steps); ``speed`` is that setting (:data:`SCRIPT_SPEED_MATCHED`)."""
+
+    def __init__(self, env: gym.Env, speed: float):
+        if not 0.0 < speed <= 1.0:
+            raise ValueError(f"oracle speed must be in (0, 1], got {speed}")
+        self.oracle = env.unwrapped.oracle_action
+        self.speed = float(speed)
+
+    def __call__(self, obs: dict):
+        action = np.array(self.oracle(obs), np.float32)
+        if action.size % 5:                  # ECM tasks: every dimension is camera motion
+            return action * self.speed
+        arms = action.reshape(-1, 5)         # per PSM arm: dx, dy, dz, d_rot, jaw
+        arms[:, :4] *= self.speed
+        return arms.reshape(-1)
+
+
+# The script pace that matches the paper's script demos (NeedlePick, 150-step horizon: 109 steps, 11.7 cm).
+SCRIPT_SPEED_MATCHED = 0.3
+
+
 def collect_script(task: str, episodes: int, out: str | Path, seed: int | None = 0, max_steps: int | None = None,
                    keep_failures: bool = False, append: bool = False, max_attempts: int | None = None,
-                   progress: bool = True, command: str | None = None) -> CollectResult:
+                   progress: bool = True, command: str | None = None,
+                   camera_size: tuple[int, int] | None = None, speed: float = 1.0) -> CollectResult:
     """Record ``episodes`` oracle episodes of ``task`` into the LeRobot dataset at ``out``.
 
     Attempt ``i`` uses seed ``seed + i`` (``seed=None``: 0, or with ``append`` the seed after the dataset's
     last scripted one, see :func:`first_seed`); an attempt is kept when it succeeded at some step (the original
     generator's rule), or always with ``keep_failures``. Gives up after ``max_attempts`` (default 3×).
+    ``camera_size`` = (width, height) also records the endoscope view as video.
+    ``speed`` < 1 runs the oracle at that fraction of its pace (:class:`PacedOracle`; recorded in provenance).
     """
     if episodes <= 0:
-        raise ValueError(f"--episodes must be positive, got {episodes}")
+        raise ValueError(f"the number of episodes must be positive, got {episodes}")
     seed = first_seed(out, append, seed, "script")
     import surrol_data.envs  # noqa: F401  (registers the ids)
 
     eid = make_env_id(task)
     kwargs = {"max_episode_steps": max_steps} if max_steps else {}
-    env = gym.make(eid, **kwargs)
+    env = make_env(eid, camera_kwargs(camera_size), **kwargs)
     task_name = eid.split("/")[1].rsplit("-v", 1)[0]
     result = CollectResult(root=Path(out))
     max_attempts = max_attempts or 3 * episodes
+    policy = ORACLE if speed == 1.0 else PacedOracle(env, speed)
+    settings = json.dumps({"oracle_speed": float(speed)}) if speed != 1.0 else "{}"
     recorder = DatasetRecorder(out, task=task_name, env_id=eid, task_description=env.unwrapped.TASK,
-                               features=features_for(env), append=append, command=command)
+                               features=features_for(env), append=append, command=command,
+                               robot_type=dimension_names(env).robot_type)
     bar = tqdm(total=episodes, desc=f"collect {task_name} (script)", unit="ep", disable=not progress)
     try:
         with recorder:
             while result.kept < episodes and result.attempts < max_attempts:
                 s = seed + result.attempts
                 t0 = time.perf_counter()
-                traj = rollout(env, ORACLE, s)
+                traj = rollout(env, policy, s)
                 result.attempts += 1
                 if not traj.is_success:
                     result.failures += 1
@@ -90,7 +148,7 @@ def collect_script(task: str, episodes: int, out: str | Path, seed: int | None =
                         continue
                 recorder.record(traj, {
                     "source": "script", "device": "none", "operator_id": "oracle", "skill": "scripted",
-                    "operator_simulated": False, "operator_params": "{}", "device_settings": "{}",
+                    "operator_simulated": False, "operator_params": "{}", "device_settings": settings,
                     "seed": s, "duration_s": time.perf_counter() - t0,
                 })
                 result.kept += 1

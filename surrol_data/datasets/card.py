@@ -104,7 +104,9 @@ def render_dataset_card(root: str | Path, license: str = DEFAULT_LICENSE, repo_i
     if commands:
         lines += ["### How it was made", "", "```", *commands, "```", ""]
     structure = ["[meta/info.json](meta/info.json) describes every feature; in short:", "",
-                 "Per frame: `observation.*` (s_t), `action`, `next.reward`, `next.done` (env terminated), "
+                 "Per frame: `observation.state` and `observation.environment_state` (s_t: the robot state, then the "
+                 "object/achieved goal and the desired goal, the inputs LeRobot policies such as ACT read), `action`, "
+                 "`next.reward`, `next.done` (env terminated), `next.truncated` (ended without terminating), "
                  "`next.success`, `next.observation.*` (s_{t+1}), and `complementary_info.*` (tool-tip position in m, "
                  "jaw angle in rad, clutch and jaw buttons). Per episode: `provenance/*` columns in `meta/episodes` "
                  "(filter with LeRobot's `episode_filter`). Read with `surrol_data.datasets.reader.DatasetReader`; "

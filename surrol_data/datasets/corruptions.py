@@ -25,9 +25,9 @@ from surrol_data.datasets.trajectory import Trajectory
 OBS, GOAL, CAMERA = 7, 3, (32, 32)
 EPISODES, STEPS = 4, 6
 TRACE_DIR = "meta/device_traces"
-FLOAT_FEATURES = ("observation.state", "observation.achieved_goal", "observation.desired_goal", "action",
-                  "next.reward", "next.observation.state", "next.observation.achieved_goal",
-                  "next.observation.desired_goal", "complementary_info.tip_position", "complementary_info.jaw_angle",
+FLOAT_FEATURES = ("observation.state", "observation.environment_state", "action",
+                  "next.reward", "next.observation.state", "next.observation.environment_state",
+                  "complementary_info.tip_position", "complementary_info.jaw_angle",
                   "complementary_info.next_tip_position", "complementary_info.next_jaw_angle")
 
 

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from surrol_data.datasets.episode_ranges import chosen_episodes
 from surrol_data.datasets.info import read_sidecar
 from surrol_data.datasets.reader import DatasetError, DatasetReader
 from surrol_data.datasets.schema import PROVENANCE_COLUMNS, package_version
@@ -56,8 +57,9 @@ def default_dataset_id(task: str, name: str) -> str:
 
 
 def export_minari(src: str | Path, out: str | Path, *, dataset_id: str | None = None, where: str | None = None,
-                  author: str | None = None, progress: bool = True):
-    """Write the episodes of ``src`` (matching ``where``) as the Minari dataset ``dataset_id`` under ``out``.
+                  author: str | None = None, progress: bool = True, episodes: list[int] | None = None):
+    """Write the episodes of ``src`` (matching ``where``, listed in ``episodes``) as the Minari dataset
+    ``dataset_id`` under ``out``. The state, goals, actions and rewards only: camera frames are not exported.
 
     Returns the :class:`minari.MinariDataset`. ``out`` becomes the datasets root (see the module docstring).
     """
@@ -72,7 +74,7 @@ def export_minari(src: str | Path, out: str | Path, *, dataset_id: str | None = 
 
     require_valid(src)  # cheap checks: a damaged dataset is refused before anything is written
     reader = DatasetReader(src)
-    episodes = reader.select(where)
+    episodes = chosen_episodes(reader, where, episodes)
     if not episodes:
         raise DatasetError(f"no episode of {src} to export" + (f" matches --where {where!r}" if where else ""))
     side = read_sidecar(src)
@@ -82,10 +84,10 @@ def export_minari(src: str | Path, out: str | Path, *, dataset_id: str | None = 
     out.mkdir(parents=True, exist_ok=True)
 
     f = reader.features
-    box = lambda key: gym.spaces.Box(-np.inf, np.inf, shape=tuple(f[key]["shape"]), dtype=np.float32)  # noqa: E731
-    observation_space = gym.spaces.Dict({"observation": box("observation.state"),
-                                         "achieved_goal": box("observation.achieved_goal"),
-                                         "desired_goal": box("observation.desired_goal")})
+    box = lambda dim: gym.spaces.Box(-np.inf, np.inf, shape=(dim,), dtype=np.float32)  # noqa: E731
+    goal_dim = int(f["observation.environment_state"]["shape"][0]) // 2  # achieved goal, then desired goal
+    observation_space = gym.spaces.Dict({"observation": box(int(f["observation.state"]["shape"][0])),
+                                         "achieved_goal": box(goal_dim), "desired_goal": box(goal_dim)})
     action_space = gym.spaces.Box(-1.0, 1.0, shape=tuple(f["action"]["shape"]), dtype=np.float32)
 
     rows = reader.episodes.set_index("episode_index")

@@ -5,6 +5,7 @@ Layout (shared/docs/reference/algorithms.md §6.1)::
     data                attrs total (samples), env_args (JSON: env_name = gym id, type = 2 (gym), env_kwargs)
     data/demo_<i>       attrs num_samples, plus the episode's provenance (source, operator_id, skill, seed, ...)
         obs/<key>       (N, dim) float32 for key in observation, achieved_goal, desired_goal: s_0..s_{N-1}
+        obs/<camera>_image  (N, H, W, 3) uint8 for each camera of the dataset (e.g. endoscope_image)
         next_obs/<key>  (N, dim): s_1..s_N
         actions (N, A), rewards (N,), dones (N,) (1 where the env terminated, and at the last step)
         states (N, obs_dim): the observation vector (robomimic wants one; SurRoL has no MuJoCo state)
@@ -26,6 +27,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from surrol_data.datasets.episode_ranges import chosen_episodes
 from surrol_data.datasets.info import read_sidecar
 from surrol_data.datasets.reader import DatasetError, DatasetReader
 from surrol_data.datasets.schema import PROVENANCE_COLUMNS
@@ -42,8 +44,10 @@ def mask_name(prefix: str, value: str) -> str:
 
 
 def export_robomimic(src: str | Path, out: str | Path, *, where: str | None = None, valid_fraction: float = 0.1,
-                     seed: int = 0, overwrite: bool = False, progress: bool = True) -> Path:
-    """Write the episodes of ``src`` (those matching ``where``, default all) to the robomimic file ``out``."""
+                     seed: int = 0, overwrite: bool = False, progress: bool = True,
+                     episodes: list[int] | None = None) -> Path:
+    """Write the episodes of ``src`` (those matching ``where`` and listed in ``episodes``, default all) to the
+    robomimic file ``out``; camera frames go to ``obs/<camera>_image``."""
     from surrol_data.extras import require
 
     h5py = require("h5py")
@@ -57,9 +61,10 @@ def export_robomimic(src: str | Path, out: str | Path, *, where: str | None = No
 
     require_valid(src)  # cheap checks: a damaged dataset is refused before anything is written
     reader = DatasetReader(src)
-    episodes = reader.select(where)
+    episodes = chosen_episodes(reader, where, episodes)
     if not episodes:
         raise DatasetError(f"no episode of {src} to export" + (f" matches --where {where!r}" if where else ""))
+    cameras = reader.cameras
     rows = reader.episodes.set_index("episode_index")
     side = read_sidecar(src)
     env_id = side.get("env_id") or str(rows["env_id"].iloc[0])
@@ -74,15 +79,17 @@ def export_robomimic(src: str | Path, out: str | Path, *, where: str | None = No
     with h5py.File(tmp, "w") as f:
         data = f.create_group("data")
         for i, ep in enumerate(tqdm(episodes, desc=f"export robomimic {out.name}", unit="ep", disable=not progress)):
-            traj = reader.trajectory(ep)
+            traj = reader.trajectory(ep, images=bool(cameras))
             name = f"demo_{i}"
             demo = data.create_group(name)
             n = len(traj)
             obs = {"observation": traj.observation, "achieved_goal": traj.achieved_goal,
                    "desired_goal": traj.desired_goal}
-            for key in OBS_KEYS:
-                demo.create_dataset(f"obs/{key}", data=obs[key][:-1])
-                demo.create_dataset(f"next_obs/{key}", data=obs[key][1:])
+            for cam in cameras:  # robomimic's image modality: keys ending in "_image", (N, H, W, 3) uint8
+                obs[f"{cam}_image"] = traj.images[cam]
+            for key, values in obs.items():
+                demo.create_dataset(f"obs/{key}", data=values[:-1])
+                demo.create_dataset(f"next_obs/{key}", data=values[1:])
             dones = traj.terminated.astype(np.int64)
             dones[-1] = 1  # robomimic marks the end of each demo as done
             demo.create_dataset("actions", data=traj.action)
@@ -103,7 +110,11 @@ def export_robomimic(src: str | Path, out: str | Path, *, where: str | None = No
                 masks.setdefault(key, []).append(name)
                 masks.setdefault(f"{key}_{split}", []).append(name)
         data.attrs["total"] = total
-        data.attrs["env_args"] = json.dumps({"env_name": env_id, "type": GYM_ENV_TYPE, "env_kwargs": {}})
+        env_kwargs = {}
+        if cameras:  # rollouts inside robomimic need the same image in the observation
+            h, w = reader.features[f"observation.images.{cameras[0]}"]["shape"][:2]
+            env_kwargs = {"camera": True, "camera_size": [int(w), int(h)]}
+        data.attrs["env_args"] = json.dumps({"env_name": env_id, "type": GYM_ENV_TYPE, "env_kwargs": env_kwargs})
         data.attrs["surrol_data"] = json.dumps({"source": str(Path(src).resolve()), "where": where or "",
                                                 "task": side.get("task", ""), "split_seed": seed,
                                                 "valid_fraction": valid_fraction})

@@ -28,12 +28,28 @@ def hub_offline():
 
 @contextlib.contextmanager
 def quiet_video_encoder():
-    """SVT-AV1 logs errors only inside the block (the user's own ``SVT_LOG`` wins if set)."""
+    """SVT-AV1 and FFmpeg (through PyAV) log errors only inside the block (the user's own ``SVT_LOG`` wins if set);
+    without this each encoded episode prints ~20 SVT lines and the mp4 muxer's "Starting second pass" note.
+
+    lerobot's encoder hands FFmpeg's log back to its default (print everything from INFO up) after each episode,
+    before it appends the episode to the dataset's video file; inside the block that hand-back keeps errors only.
+    """
+    import av.logging
+
     saved = os.environ.get("SVT_LOG")
+    saved_level = av.logging.get_level()
+    restore_default = av.logging.restore_default_callback
     if saved is None:
         os.environ["SVT_LOG"] = "1"
+    av.logging.set_level(av.logging.ERROR)
+    av.logging.restore_default_callback = lambda: av.logging.set_level(av.logging.ERROR)
     try:
         yield
     finally:
+        av.logging.restore_default_callback = restore_default
+        if saved_level is None:
+            restore_default()
+        else:
+            av.logging.set_level(saved_level)
         if saved is None:
             os.environ.pop("SVT_LOG", None)

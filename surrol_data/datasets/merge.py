@@ -1,20 +1,28 @@
 """Make new datasets out of existing ones — merge, filter, train/valid split — with provenance intact.
 
-Every episode is read with :class:`~surrol_data.datasets.reader.DatasetReader` and written again through
-:class:`~surrol_data.collect.recorder.DatasetRecorder` (the real ``lerobot`` writer) with *all* its provenance
-columns given explicitly, so nothing is recomputed or lost: operator, skill, seed, the original command
-line, recording time and git commit travel with the episode. Episode indices are renumbered 0..N-1 in the
-output; ``meta/surrol_data.json`` records where each one came from (``derived_from``), and the card says so.
+``merge`` goes through LeRobot's own :func:`lerobot.datasets.aggregate.aggregate_datasets`: it copies the data
+parquet and the episodes metadata (every ``provenance/*`` column included, renumbered) and concatenates the
+videos without re-encoding them. Around it, ours: before, the compatibility checks (one task, env id, fps, robot
+type and feature set; no dataset given twice; no episode that is a copy of another) so a refusal names the
+difference in our terms; after, the device traces (renumbered), the sidecar (``derived_from``: where each
+episode came from) and the dataset card. It is written in a staging folder beside ``out`` and renamed into place
+when complete, so a killed merge leaves no output (and never touches its inputs).
 
-(LeRobot's own ``dataset_tools.split_dataset`` / ``delete_episodes`` rebuild the episodes table and drop
-extra per-episode columns, so they cannot be used here; see shared/docs/reference/lerobot.md §2.)
+``filter`` and ``split`` keep a subset of episodes, which ``aggregate_datasets`` cannot do (and LeRobot's own
+``dataset_tools.split_dataset`` / ``delete_episodes`` rebuild the episodes table and drop extra per-episode
+columns; see shared/docs/reference/lerobot.md §2): every kept episode is read with
+:class:`~surrol_data.datasets.reader.DatasetReader` and written again through
+:class:`~surrol_data.collect.recorder.DatasetRecorder` with *all* its provenance columns given explicitly, so
+nothing is recomputed or lost. ``merge --drop-duplicates`` takes that path too (it leaves episodes out). Camera
+frames are decoded by the reader and re-encoded (lossy, like any video re-encode).
 
-Camera datasets: the reader does not decode video, so frames are decoded with ``LeRobotDataset`` and
-re-encoded (lossy, like any video re-encode).
+Episode indices are renumbered 0..N-1 in the output; ``meta/surrol_data.json`` records where each one came from
+(``derived_from``), and the card says so.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import shlex
 import sys
@@ -64,12 +72,21 @@ def _check_compatible(readers: list[DatasetReader]) -> dict:
             if other_side.get(key) != side[key]:
                 raise DatasetError(f"cannot combine {first.root} ({key}={side[key]!r}) with {other.root} "
                                    f"({key}={other_side.get(key)!r}): one dataset holds one task")
+        for key in ("fps", "robot_type"):
+            if other.info.get(key) != first.info.get(key):
+                raise DatasetError(f"cannot combine {first.root} ({key}={first.info.get(key)!r}) with {other.root} "
+                                   f"({key}={other.info.get(key)!r}): LeRobot datasets have one {key}")
         theirs = _user_features(other.info)
         diff = sorted(k for k in set(features) | set(theirs)
                       if k not in features or k not in theirs
                       or (features[k]["dtype"], features[k]["shape"]) != (theirs[k]["dtype"], theirs[k]["shape"]))
         if diff:
             raise DatasetError(f"cannot combine {first.root} with {other.root}: features differ in {diff}")
+        renamed = sorted(k for k in features if _names(features[k]) != _names(theirs[k]))
+        if renamed:
+            raise DatasetError(f"cannot combine {first.root} with {other.root}: the dimension names of {renamed} "
+                               "differ (datasets recorded by different versions?); bring both to the current "
+                               "schema first")
         missing = [k for k in PROVENANCE_COLUMNS if k not in other.episodes.columns]
         if missing:
             raise DatasetError(f"{other.root}: episodes lack provenance column(s) {missing}")
@@ -78,40 +95,21 @@ def _check_compatible(readers: list[DatasetReader]) -> dict:
             "robot_type": first.info.get("robot_type") or "dvrk_psm"}
 
 
-class _VideoFrames:
-    """Decoded camera frames of one dataset (opened only when the dataset has cameras)."""
-
-    def __init__(self, reader: DatasetReader):
-        from surrol_data.collect.recorder import VIDEO_BACKEND, _lerobot_dataset_class
-
-        self.keys = [k for k, ft in reader.features.items() if ft["dtype"] == "video"]
-        from surrol_data.datasets.hub_offline import hub_offline
-
-        with hub_offline():
-            self.ds = _lerobot_dataset_class()(f"local/{reader.root.name}", root=reader.root,
-                                               video_backend=VIDEO_BACKEND)
-
-    def episode(self, ep: int) -> dict[str, np.ndarray]:
-        row = self.ds.meta.episodes[int(ep)]
-        frames = {k: [] for k in self.keys}
-        for i in range(int(row["dataset_from_index"]), int(row["dataset_to_index"])):
-            item = self.ds[i]
-            for k in self.keys:
-                chw = item[k].numpy()
-                frames[k].append(np.clip(np.rint(chw.transpose(1, 2, 0) * 255.0), 0, 255).astype(np.uint8))
-        # The recorder stores images of s_0..s_{T-1}; Trajectory wants T+1, the last is never written.
-        return {k.removeprefix("observation.images."): np.stack(v + v[-1:]) for k, v in frames.items()}
+def _names(feature: dict):
+    names = feature.get("names")
+    return list(names.values())[0] if isinstance(names, dict) and len(names) == 1 else names
 
 
 def copy_episodes(selection: list[tuple[str | Path, list[int]]], out: str | Path, *, operation: str,
                   where: str | None = None, command: str | None = None, progress: bool = True,
-                  drop_duplicates: bool = False) -> Path:
+                  drop_duplicates: bool = False, _duplicates: list | None = None) -> Path:
     """Write the episodes ``selection`` = [(dataset root, [episode indices]) ...] into a new dataset ``out``.
 
     Inputs must share the task, env id and frame features, and pass the cheap validation checks. An episode
     whose content hash equals an earlier one's is refused (DatasetError), or skipped with ``drop_duplicates``.
-    Returns ``out``.
+    Returns ``out``. ``_duplicates``: pairs a caller already left out (recorded in the sidecar).
     """
+    _duplicates = list(_duplicates or [])
     from surrol_data.collect.recorder import DatasetRecorder, _write_json_atomic
     from surrol_data.datasets.card import write_dataset_card
 
@@ -130,12 +128,9 @@ def copy_episodes(selection: list[tuple[str | Path, list[int]]], out: str | Path
             raise ValueError(f"the output {out} is one of the inputs")
     shared = _check_compatible(readers)
     selection, duplicates = _without_duplicates(readers, selection)
+    duplicates = _duplicates + duplicates
     if duplicates and not drop_duplicates:
-        listed = "; ".join(f"{a} = {b}" for a, b in duplicates[:5]) + (
-            f" (+{len(duplicates) - 5} more)" if len(duplicates) > 5 else "")
-        raise DatasetError(f"{operation}: {len(duplicates)} episode(s) are exact copies of earlier ones (same "
-                           f"content_hash): {listed}. Nothing was written; pass --drop-duplicates to keep one copy "
-                           "of each, or leave the repeated dataset out")
+        raise _duplicates_error(operation, duplicates)
     total = sum(len(eps) for _, eps in selection)
     if total == 0:
         raise DatasetError(f"{operation}: no episode selected" + (f" by --where {where!r}" if where else "")
@@ -149,15 +144,12 @@ def copy_episodes(selection: list[tuple[str | Path, list[int]]], out: str | Path
     try:
         with recorder:
             for reader, (_, episodes) in zip(readers, selection, strict=True):
-                has_video = any(ft["dtype"] == "video" for ft in reader.features.values())
-                video = _VideoFrames(reader) if has_video else None
                 rows = reader.episodes.set_index("episode_index")
                 for ep in episodes:
-                    traj = reader.trajectory(ep)
-                    if video is not None:
-                        traj.images = video.episode(ep)
+                    traj = reader.trajectory(ep, images=True)
                     prov = {k: _plain(rows.at[int(ep), k]) for k in PROVENANCE_COLUMNS}
                     new_index = recorder.record(traj, prov)
+                    _copy_trace(reader.root, int(ep), out, new_index)
                     provenance_of.append({"episode": new_index, "source_root": str(reader.root), "source_episode": int(ep)})
                     bar.update(1)
     finally:
@@ -199,26 +191,206 @@ def _plain(value):
 
 def merge_datasets(out: str | Path, inputs: list[str | Path], *, command: str | None = None,
                    progress: bool = True, drop_duplicates: bool = False) -> Path:
-    """All episodes of ``inputs``, in order, into the new dataset ``out`` (duplicates refused unless dropped)."""
+    """All episodes of ``inputs``, in order, into the new dataset ``out`` (see the module doc).
+
+    Refused with DatasetError before anything is written: a dataset given twice, inputs that differ in task, env
+    id, fps, robot type or features, and episodes equal in content to an earlier one (unless ``drop_duplicates``,
+    which keeps the first copy and writes the episodes again instead of aggregating).
+    """
     from surrol_data.datasets.guard import require_valid
 
+    out = Path(out)
     if not inputs:
         raise ValueError("merge needs at least one input dataset")
-    for root in dict.fromkeys(Path(r).resolve() for r in inputs):
-        require_valid(root)
-    selection = [(root, DatasetReader(root).select()) for root in inputs]
-    return copy_episodes(selection, out, operation="merge", command=command, progress=progress,
-                         drop_duplicates=drop_duplicates)
+    resolved = [Path(r).resolve() for r in inputs]
+    if out.exists():
+        raise FileExistsError(f"{out} already exists: choose a new output folder"
+                              + (" (it is one of the inputs)" if out.resolve() in resolved else ""))
+    for root in dict.fromkeys(resolved):
+        require_valid(root)  # a damaged input is refused (or a killed recording repaired) before anything is written
+    readers = [DatasetReader(root) for root in inputs]
+    shared = _check_compatible(readers)
+    selection = [(reader.root, reader.select()) for reader in readers]
+    kept, duplicates = _without_duplicates(readers, selection)
+    if duplicates:
+        if not drop_duplicates:
+            twice = list(dict.fromkeys(str(p) for p in resolved if resolved.count(p) > 1))
+            raise _duplicates_error("merge" + (f" ({', '.join(twice)} given more than once)" if twice else ""),
+                                    duplicates)
+        return copy_episodes(kept, out, operation="merge", command=command, progress=progress, drop_duplicates=True,
+                             _duplicates=duplicates)
+    return _aggregate(readers, out, shared, command=command if command is not None else shlex.join(sys.argv),
+                      progress=progress)
 
 
-def filter_dataset(src: str | Path, out: str | Path, where: str, *, command: str | None = None,
-                   progress: bool = True) -> Path:
-    """Episodes of ``src`` matching the :mod:`~surrol_data.datasets.where` expression ``where`` into ``out``."""
+STAGING_SUFFIX = ".merging"
+
+
+def staging_folder(out: Path) -> Path:
+    """Where a merge into ``out`` is built before it is renamed into place (hidden, beside ``out``)."""
+    return out.parent / f".{out.name}{STAGING_SUFFIX}"
+
+
+def _aggregate(readers: list[DatasetReader], out: Path, shared: dict, *, command: str, progress: bool) -> Path:
+    """LeRobot's aggregate_datasets into a staging folder, then traces, sidecar and card, then rename to ``out``."""
+    import shutil
+
+    from surrol_data.collect.recorder import _write_json_atomic, git_commit
+    from surrol_data.datasets.card import write_dataset_card
+    from surrol_data.datasets.hub_offline import hub_offline, quiet_video_encoder
+    from surrol_data.datasets.lock import DatasetLock, writer_pid
+    from surrol_data.datasets.schema import package_version, utc_now_iso
+
+    staging = staging_folder(out)
+    if staging.exists():
+        if writer_pid(staging) is not None:
+            raise DatasetError(f"another merge into {out} is running (pid {writer_pid(staging) or '?'}); wait for it")
+        shutil.rmtree(staging)  # left by a killed merge: it never became an output, nothing in it is anyone's data
+    staging.mkdir(parents=True)
+    built = staging / out.name
+    started = utc_now_iso()
+    try:
+        with DatasetLock(staging):
+            from lerobot.datasets.aggregate import aggregate_datasets
+
+            with hub_offline(), quiet_video_encoder(), _lerobot_progress(progress):
+                aggregate_datasets([f"local/{r.root.name}" for r in readers], f"local/{out.name}",
+                                   roots=[r.root for r in readers], aggr_root=built)
+            _restore_frame_types(built, readers[0].root)
+            _point_episode_rows_at_their_files(built)
+            provenance_of, offset = [], 0
+            for reader in readers:
+                for ep in reader.select():
+                    provenance_of.append({"episode": offset + int(ep), "source_root": str(reader.root),
+                                          "source_episode": int(ep)})
+                    _copy_trace(reader.root, int(ep), built, offset + int(ep))
+                offset += len(reader)
+            side = read_sidecar(readers[0].root)
+            for stale in ("checkpoint", "sessions", "derived_from", "created_at"):
+                side.pop(stale, None)
+            info_text = (built / "meta" / "info.json").read_text()
+            now = utc_now_iso()
+            side.update({"repo_id": f"local/{out.name}", "created_at": now, "updated_at": now,
+                         "package_version": package_version(),
+                         "sessions": [{"started_at": started, "ended_at": now, "command": command,
+                                       "git_commit": git_commit(), "package_version": package_version(),
+                                       "first_episode": 0, "episodes": offset}],
+                         "checkpoint": {"at": now, "episodes": offset, "info": json.loads(info_text)},
+                         "derived_from": {"operation": "merge", "where": "", "duplicates_dropped": [],
+                                          "method": "lerobot.datasets.aggregate.aggregate_datasets",
+                                          "sources": [{"root": str(r.root.resolve()), "episodes": len(r)}
+                                                      for r in readers],
+                                          "episodes": provenance_of}})
+            _write_json_atomic(built / SIDECAR_PATH, side)
+            write_dataset_card(built)
+        (built / ".surrol_data.lock").unlink(missing_ok=True)
+        built.rename(out)  # atomic: before it, no output; after it, the whole output
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return out
+
+
+def _restore_frame_types(root: Path, like: Path) -> None:
+    """aggregate_datasets rewrites the data parquet through pandas, which turns each fixed-size vector column into
+    a variable-length list and drops the Hugging Face features metadata; cast the files back to the schema the
+    recorder wrote (that of ``like``'s data), keeping one row group per episode."""
+    import os
+
+    import pyarrow.parquet as pq
+    from lerobot.datasets.io_utils import write_table_one_row_group_per_episode
+
+    from surrol_data.datasets.reader import DATA_DIR, parquet_files
+
+    schema = pq.read_schema(parquet_files(like, DATA_DIR)[0])
+    for path in parquet_files(root, DATA_DIR):
+        table = pq.read_table(path)
+        if table.schema.equals(schema, check_metadata=True):
+            continue
+        table = table.select(schema.names).cast(schema).replace_schema_metadata(schema.metadata)
+        tmp = path.with_name(path.name + ".tmp")
+        write_table_one_row_group_per_episode(table, tmp)
+        os.replace(tmp, path)
+
+
+def _point_episode_rows_at_their_files(root: Path) -> None:
+    """aggregate_datasets (lerobot 0.6.1) appends every episodes-metadata file of a source into one file but shifts
+    each row's ``meta/episodes/chunk_index``/``file_index`` as if the files had stayed apart; a source recorded in
+    several files (the recorder's checkpoints) then names files its rows are not in. Name the file each row is in."""
+    import os
+    import re
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from surrol_data.datasets.reader import EPISODES_DIR, parquet_files
+
+    for path in parquet_files(root, EPISODES_DIR):
+        chunk, file = (int(v) for v in re.findall(r"\d+", path.relative_to(root / EPISODES_DIR).as_posix())[-2:])
+        table = pq.read_table(path)
+        for column, value in (("meta/episodes/chunk_index", chunk), ("meta/episodes/file_index", file)):
+            if column in table.column_names:
+                at = table.column_names.index(column)
+                typ = table.schema.field(column).type
+                table = table.set_column(at, table.schema.field(column), pa.array([value] * table.num_rows, typ))
+        tmp = path.with_name(path.name + ".tmp")
+        pq.write_table(table, tmp)
+        os.replace(tmp, path)
+
+
+def _copy_trace(src_root: Path, src_ep: int, dst_root: Path, dst_ep: int) -> None:
+    """A haptic episode's device trace goes with it, under its new index (the file holds no index itself)."""
+    import shutil
+
+    from surrol_data.collect.repair import TRACE_DIR
+
+    src = src_root / TRACE_DIR / f"episode_{src_ep:06d}.npz"
+    if src.exists():
+        dst = dst_root / TRACE_DIR / f"episode_{dst_ep:06d}.npz"
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(src, dst)
+
+
+@contextlib.contextmanager
+def _lerobot_progress(show: bool):
+    """aggregate_datasets reports through tqdm bars of its own; silence them when our caller asked for no progress."""
+    if show:
+        yield
+        return
+    import tqdm as tqdm_module
+
+    original = tqdm_module.tqdm
+
+    def quiet(*args, **kwargs):
+        kwargs["disable"] = True
+        return original(*args, **kwargs)
+
+    tqdm_module.tqdm = quiet
+    try:
+        yield
+    finally:
+        tqdm_module.tqdm = original
+
+
+def _duplicates_error(operation: str, duplicates: list[tuple[str, str]]) -> DatasetError:
+    listed = "; ".join(f"{a} = {b}" for a, b in duplicates[:5]) + (
+        f" (+{len(duplicates) - 5} more)" if len(duplicates) > 5 else "")
+    return DatasetError(f"{operation}: {len(duplicates)} episode(s) are exact copies of earlier ones (same "
+                        f"content_hash): {listed}. Nothing was written; pass --drop-duplicates to keep one copy "
+                        "of each, or leave the repeated dataset out")
+
+
+def filter_dataset(src: str | Path, out: str | Path, where: str | None, *, command: str | None = None,
+                   progress: bool = True, episodes: list[int] | None = None) -> Path:
+    """Episodes of ``src`` matching the :mod:`~surrol_data.datasets.where` expression ``where`` (all if None) and
+    listed in ``episodes`` (indices; all if None) into ``out``."""
+    from surrol_data.datasets.episode_ranges import chosen_episodes
     from surrol_data.datasets.guard import require_valid
 
+    if where is None and episodes is None:
+        raise ValueError("say which episodes to keep: --where EXPRESSION and/or --episodes 0,3,5-9")
     require_valid(src)
-    episodes = DatasetReader(src).select(where)
-    return copy_episodes([(src, episodes)], out, operation="filter", where=where, command=command,
+    chosen = chosen_episodes(DatasetReader(src), where, episodes)
+    return copy_episodes([(src, chosen)], out, operation="filter", where=where, command=command,
                          progress=progress)
 
 
@@ -238,7 +410,7 @@ def split_dataset(src: str | Path, out: str | Path, valid_fraction: float = 0.1,
         else reader.episodes
     train, valid = split_episodes(chosen, valid_fraction, seed)
     if not valid:
-        raise DatasetError(f"{src}: valid_fraction={valid_fraction} leaves no validation episode "
+        raise DatasetError(f"{src}: --valid-fraction {valid_fraction} leaves no validation episode "
                            f"({len(chosen)} episodes); use a larger fraction or more episodes")
     parts = {}
     for name, episodes in (("train", train), ("valid", valid)):

@@ -2,13 +2,14 @@
 
 Validates first (a dataset that fails ``surrol-data validate`` is not pushed), refreshes the dataset card,
 creates the dataset repo if needed, uploads the folder (minus the PNG staging area ``images/``, repair
-backups, partial files and locks) and points the LeRobot codebase-version tag (``v3.0``) at the new commit:
+backups, partial files and locks), deletes what an earlier push left that the folder no longer has (the repo
+mirrors the dataset) and points the LeRobot codebase-version tag (``v3.0``) at the new commit:
 ``LeRobotDataset(repo_id)`` loads the revision that tag names, so a tag left on the first push would hide every
 later one. ``--dry-run`` lists what would be uploaded, selected with huggingface_hub's
 own pattern filter, without any network access.
 
-The toolkit sets ``HF_HUB_OFFLINE=1`` so nothing reaches the Hub by accident; a real push needs
-``HF_HUB_OFFLINE=0`` and a token (``hf auth login``).
+A push needs the Hub reachable (``HF_HUB_OFFLINE`` unset or 0) and a token (``hf auth login`` or ``HF_TOKEN``);
+``HF_ENDPOINT`` points it at another Hub (the tests use a local stand-in).
 """
 
 from __future__ import annotations
@@ -67,14 +68,17 @@ def push_dataset(root: str | Path, repo_id: str, *, private: bool = False, dry_r
     from huggingface_hub import HfApi, constants
 
     if constants.HF_HUB_OFFLINE:
-        raise RuntimeError("the Hub is disabled (HF_HUB_OFFLINE=1, set by surrol_data to keep datasets local); "
-                           "run the push with HF_HUB_OFFLINE=0 in the environment")
+        raise RuntimeError("the Hub is disabled (HF_HUB_OFFLINE=1 in the environment); run the push with "
+                           "HF_HUB_OFFLINE=0")
     write_dataset_card(root, repo_id=repo_id)
     plan = plan_push(root, repo_id)
     api = HfApi(token=os.environ.get("HF_TOKEN"))
     api.create_repo(repo_id, repo_type="dataset", private=private, exist_ok=True)
+    # delete_patterns="*": files of an earlier push that this dataset no longer has go (a stale episodes-metadata
+    # file would otherwise be read as part of the dataset); .gitattributes stays (huggingface_hub keeps it).
     commit = api.upload_folder(folder_path=str(root), repo_id=repo_id, repo_type="dataset",
-                               ignore_patterns=IGNORE_PATTERNS, commit_message="surrol_data: push dataset")
+                               ignore_patterns=IGNORE_PATTERNS, delete_patterns="*",
+                               commit_message="surrol_data: push dataset")
     if plan.revision_tag:
         move_tag(api, repo_id, plan.revision_tag, commit.oid)
     return plan

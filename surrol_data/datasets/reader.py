@@ -2,8 +2,8 @@
 
 No ``lerobot`` import (it costs ~6 s and ~0.9 GB): the layout is read with pyarrow. LeRobot writes one
 row group per episode, so one episode is one row-group read (~0.5 ms); :meth:`DatasetReader.transitions`
-reads the whole dataset in one pass. Videos are not decoded here (``Trajectory.images`` comes back
-empty); use ``lerobot.datasets.lerobot_dataset.LeRobotDataset`` for frames.
+reads the whole dataset in one pass. Camera frames are decoded on request (:meth:`DatasetReader.frames`,
+``trajectory(ep, images=True)``) with PyAV (:mod:`surrol_data.datasets.video`).
 
 What each column holds is fixed by :mod:`surrol_data.datasets.schema`.
 """
@@ -20,27 +20,34 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from surrol_data.datasets.schema import PROVENANCE_PREFIX
-from surrol_data.datasets.trajectory import DEVICE_FLAGS, Trajectory
+from surrol_data.datasets.schema import (
+    ENV_STATE,
+    NEXT_ENV_STATE,
+    PROVENANCE_PREFIX,
+    is_schema1,
+    split_environment_state,
+)
+from surrol_data.datasets.trajectory import DEVICE_FLAGS, EVENT_FLAGS, Trajectory
 
 INFO_PATH = "meta/info.json"
 EPISODES_DIR = "meta/episodes"
 DATA_DIR = "data"
 
-# Frame columns the reader needs to rebuild a Trajectory / transitions.
+# Frame columns the reader needs to rebuild a Trajectory / transitions (the goals are the two halves of the
+# environment state).
 _TRANSITION_COLUMNS = {
     "obs": "observation.state",
-    "achieved_goal": "observation.achieved_goal",
-    "desired_goal": "observation.desired_goal",
+    "environment_state": ENV_STATE,
     "action": "action",
     "reward": "next.reward",
     "next_obs": "next.observation.state",
-    "next_achieved_goal": "next.observation.achieved_goal",
-    "next_desired_goal": "next.observation.desired_goal",
+    "next_environment_state": NEXT_ENV_STATE,
     "done": "next.done",
     "success": "next.success",
 }
 _SCALAR_KEYS = ("reward", "done", "success")
+_GOAL_SPLIT = {"environment_state": ("achieved_goal", "desired_goal"),
+               "next_environment_state": ("next_achieved_goal", "next_desired_goal")}
 _TRAJECTORY_EXTRA = ("complementary_info.tip_position", "complementary_info.jaw_angle",
                      "complementary_info.next_tip_position", "complementary_info.next_jaw_angle",
                      *(f"complementary_info.{f}" for f in DEVICE_FLAGS))
@@ -133,18 +140,29 @@ def trajectory_from_table(table: pa.Table, features: dict) -> Trajectory:
         return np.concatenate([now, nxt[-1:]], axis=0).astype(np.float32)
 
     tip = with_last("complementary_info.tip_position", "complementary_info.next_tip_position")
+    achieved, desired = split_environment_state(with_last(ENV_STATE, NEXT_ENV_STATE))
     return Trajectory(
         observation=with_last("observation.state", "next.observation.state"),
-        achieved_goal=with_last("observation.achieved_goal", "next.observation.achieved_goal"),
-        desired_goal=with_last("observation.desired_goal", "next.observation.desired_goal"),
+        achieved_goal=np.ascontiguousarray(achieved), desired_goal=np.ascontiguousarray(desired),
         action=_as_2d(arrays["action"], dim("action")).astype(np.float32),
         reward=arrays["next.reward"].reshape(-1).astype(np.float32),
         success=arrays["next.success"].reshape(-1).astype(bool),
         terminated=arrays["next.done"].reshape(-1).astype(bool),
         tip_position=tip.reshape(len(tip), n_arms, 3),
         jaw_angle=with_last("complementary_info.jaw_angle", "complementary_info.next_jaw_angle"),
-        flags={f: arrays[f"complementary_info.{f}"].reshape(-1).astype(bool) for f in DEVICE_FLAGS},
+        flags={**{f: arrays[f"complementary_info.{f}"].reshape(-1).astype(bool) for f in DEVICE_FLAGS},
+               **_event_flags(arrays, n_arms)},
     )
+
+
+def _event_flags(arrays: dict[str, np.ndarray], n_arms: int) -> dict[str, np.ndarray]:
+    """The optional env events as the recorder got them: ``grasped`` (T, n_arms), ``drop`` (T,)."""
+    events = {}
+    if "complementary_info.grasped" in arrays:
+        events["grasped"] = _as_2d(arrays["complementary_info.grasped"], n_arms).astype(bool)
+    if "complementary_info.drop" in arrays:
+        events["drop"] = arrays["complementary_info.drop"].reshape(-1).astype(bool)
+    return events
 
 
 class DatasetReader:
@@ -243,6 +261,10 @@ class DatasetReader:
     # ---------------------------------------------------------------- frames
 
     def _require_features(self, names: Iterable[str]) -> None:
+        if is_schema1(self.features):
+            raise DatasetError(f"{self.root} was written with surrol_data schema 1 (goals in "
+                               "observation.achieved_goal / desired_goal): run `surrol-data upgrade "
+                               f"{self.root}` to rewrite it in the current schema")
         missing = [n for n in names if n not in self.features]
         if missing:
             raise DatasetError(f"{self.root} lacks feature(s) {missing}: not written with the surrol_data schema "
@@ -313,20 +335,54 @@ class DatasetReader:
     def _trajectory_from(self, table: pa.Table) -> Trajectory:
         return trajectory_from_table(table, self.features)
 
-    def trajectory(self, ep: int) -> Trajectory:
-        """Episode ``ep`` as a :class:`Trajectory` (T+1 observations, the last one included; no images)."""
-        columns = [*_TRANSITION_COLUMNS.values(), *_TRAJECTORY_EXTRA]
+    def _event_columns(self) -> list[str]:
+        """The optional env-event columns this dataset has (see :func:`surrol_data.datasets.schema.event_features`)."""
+        return [f"complementary_info.{e}" for e in EVENT_FLAGS if f"complementary_info.{e}" in self.features]
+
+    def trajectory(self, ep: int, images: bool = False) -> Trajectory:
+        """Episode ``ep`` as a :class:`Trajectory` (T+1 observations, the last one included).
+
+        ``images=True`` decodes the camera frames too (see :meth:`frames`); the dataset holds the image of each
+        s_0..s_{T-1}, so the image of s_T repeats the last one.
+        """
+        columns = [*_TRANSITION_COLUMNS.values(), *_TRAJECTORY_EXTRA, *self._event_columns()]
         self._require_features(columns)
         table = self._episode_table(int(ep), columns)
         expected = int(self.episodes["length"].iloc[self._episode_row(ep)])
         if table.num_rows != expected:
             raise DatasetError(f"episode {ep}: {table.num_rows} frames in {self._data_path(self._episode_row(ep))}, "
                                f"metadata says {expected}; run surrol_data.collect.recorder.repair(root)")
-        return self._trajectory_from(table)
+        traj = self._trajectory_from(table)
+        if images:
+            traj.images = {cam: np.concatenate([f, f[-1:]]) for cam, f in self.frames(ep).items()}
+        return traj
+
+    @property
+    def cameras(self) -> list[str]:
+        """Camera names (``observation.images.<name>`` video features), in feature order."""
+        return [k.removeprefix("observation.images.") for k, ft in self.features.items()
+                if ft["dtype"] == "video" and k.startswith("observation.images.")]
+
+    def frames(self, ep: int) -> dict[str, np.ndarray]:
+        """Episode ``ep``'s camera frames: name -> (T, H, W, 3) uint8, decoded from its segment of the video file."""
+        from surrol_data.datasets.video import decode_segment
+
+        row = self._episode_row(ep)
+        length = int(self.episodes["length"].iloc[row])
+        out = {}
+        for cam in self.cameras:
+            key = f"observation.images.{cam}"
+            value = {c: self._meta.column(f"videos/{key}/{c}")[row].as_py()
+                     for c in ("chunk_index", "file_index", "from_timestamp", "to_timestamp")}
+            path = self.root / self.info["video_path"].format(video_key=key, chunk_index=int(value["chunk_index"]),
+                                                             file_index=int(value["file_index"]))
+            out[cam] = decode_segment(path, float(value["from_timestamp"]), float(value["to_timestamp"]), self.fps,
+                                      length)
+        return out
 
     def trajectories(self, episodes: Iterable[int] | None = None) -> list[Trajectory]:
         """Trajectories of ``episodes`` (all if None), in the order given, each data file read once."""
-        columns = [*_TRANSITION_COLUMNS.values(), *_TRAJECTORY_EXTRA]
+        columns = [*_TRANSITION_COLUMNS.values(), *_TRAJECTORY_EXTRA, *self._event_columns()]
         self._require_features(columns)
         order = self.select() if episodes is None else [int(e) for e in episodes]
         table = self._read_episodes(order, columns)
@@ -340,7 +396,8 @@ class DatasetReader:
         """Every (s_t, a_t, r_t, s_{t+1}) of ``episodes`` (all if None) as flat arrays, in dataset order.
 
         Keys: obs, achieved_goal, desired_goal, action, next_obs, next_achieved_goal, next_desired_goal
-        (N, dim) float32; reward (N,) float32; done, success (N,) bool; episode_index (N,) int64.
+        (N, dim) float32 (the goals are the halves of ``observation.environment_state``); reward (N,) float32;
+        done, success (N,) bool; episode_index (N,) int64.
         ``done`` is the env's ``terminated`` (don't bootstrap); episode ends are where episode_index changes.
         """
         self._require_features(_TRANSITION_COLUMNS.values())
@@ -350,6 +407,9 @@ class DatasetReader:
             values = column_to_numpy(table.column(name))
             if key in _SCALAR_KEYS:
                 out[key] = values.reshape(-1).astype(np.float32 if key == "reward" else bool)
+            elif key in _GOAL_SPLIT:
+                achieved, desired = split_environment_state(_as_2d(values, self._dim(name)).astype(np.float32))
+                out.update(zip(_GOAL_SPLIT[key], map(np.ascontiguousarray, (achieved, desired)), strict=True))
             else:
                 out[key] = _as_2d(values, self._dim(name)).astype(np.float32)
         out["episode_index"] = column_to_numpy(table.column("episode_index")).astype(np.int64)

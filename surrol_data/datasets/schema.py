@@ -12,19 +12,29 @@ A dataset is a LeRobot v3 dataset (written by the real ``lerobot`` package) with
 Mapping from a :class:`~surrol_data.datasets.trajectory.Trajectory` (T actions) to frames ``t = 0..T-1``:
 
 =========================================  =====================================================
-``observation.state`` / ``achieved_goal`` / ``desired_goal``   ``observation[t]`` / ...
-``next.observation.*``                      ``observation[t+1]`` / ...
+``observation.state``                       ``observation[t]``, each dimension named by the env
+                                            (:func:`surrol_data.envs.names.dimension_names`)
+``observation.environment_state``           ``achieved_goal[t]`` then ``desired_goal[t]``: the object
+                                            and goal state, the key LeRobot policies (ACT, Diffusion)
+                                            read as the environment state
+``next.observation.*``                      the same at ``t+1``
 ``action``, ``next.reward``, ``next.success``   ``action[t]``, ``reward[t]``, ``success[t]``
-``next.done``                               ``terminated[t]`` — the MDP ended (don't bootstrap). A
-                                            time-limit truncation is *not* done; the episode's end
-                                            is given by the episode boundaries.
+``next.done``                               ``terminated[t]`` — the MDP ended (don't bootstrap)
+``next.truncated``                          the episode ended at ``t`` without terminating (time
+                                            limit, operator stop): true on that last frame only
 ``complementary_info.tip_position``         ``tip_position[t]`` flattened (n_arms*3), metres
 ``complementary_info.jaw_angle``            ``jaw_angle[t]``, radians
 ``complementary_info.next_tip_position``,   the same after the action (row ``t+1``), so the
 ``complementary_info.next_jaw_angle``       proficiency metrics see the whole path
 ``complementary_info.clutch`` / ``jaw_button``  device flags ``flags[...][t]``
+``complementary_info.grasped`` / ``drop``   env events ``flags[...][t]`` (:func:`event_features`; datasets of
+                                            tasks with grasps, recorded since they were added)
 ``observation.images.<camera>`` (video)     ``images[camera][t]`` (the image of ``s_T`` is not stored)
 =========================================  =====================================================
+
+Every dimension of every feature is named. Schema 1 (``SCHEMA_VERSION`` before 2) stored the goals as
+``observation.achieved_goal`` / ``observation.desired_goal``, had no ``next.truncated`` and named the state
+``s0…``; ``surrol-data upgrade DIR`` (:mod:`surrol_data.datasets.upgrade`) rewrites such a dataset.
 
 Bookkeeping lives under ``complementary_info.*`` because LeRobot treats every ``observation.*`` key as a
 policy input.
@@ -39,7 +49,7 @@ import numpy as np
 
 from surrol_data.datasets.trajectory import DEVICE_FLAGS
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 FPS = 5  # 1 / envs.units.CONTROL_PERIOD_S; LeRobot wants an int
 PROVENANCE_PREFIX = "provenance/"
 SIDECAR_PATH = "meta/surrol_data.json"
@@ -102,65 +112,83 @@ class ProvenanceError(ValueError):
     """A provenance dict does not follow :data:`PROVENANCE_COLUMNS`."""
 
 
+class OutdatedSchemaError(ValueError):
+    """The dataset was written with an earlier surrol_data schema; ``surrol-data upgrade DIR`` rewrites it."""
+
+
+ENV_STATE = "observation.environment_state"
+NEXT_ENV_STATE = "next.observation.environment_state"
+SCHEMA1_GOAL_KEYS = ("observation.achieved_goal", "observation.desired_goal",
+                     "next.observation.achieved_goal", "next.observation.desired_goal")
+
+
 def _arm_prefixes(n_arms: int) -> list[str]:
     return [""] if n_arms == 1 else [f"psm{i + 1}_" for i in range(n_arms)]
 
 
-def _goal_names(goal_dim: int) -> list[str]:
+def _goal_names(goal_dim: int, prefix: str) -> list[str]:
     if goal_dim == 3:
-        return ["x", "y", "z"]
-    if goal_dim % 3 == 0:
-        return [f"obj{i}_{c}" for i in range(goal_dim // 3) for c in "xyz"]
-    return [f"g{i}" for i in range(goal_dim)]
+        return [f"{prefix}_{c}" for c in "xyz"]
+    return [f"{prefix}_{i}" for i in range(goal_dim)]
 
 
 def _action_names(act_dim: int, n_arms: int) -> list[str]:
     if act_dim == len(_DOF_NAMES) * n_arms:
         return [p + d for p in _arm_prefixes(n_arms) for d in _DOF_NAMES]
-    return [f"a{i}" for i in range(act_dim)]
+    return [f"action_{i}" for i in range(act_dim)]
 
 
-def _vector(dtype: str, names: list[str] | None, dim: int | None = None) -> dict:
-    return {"dtype": dtype, "shape": (dim if dim is not None else len(names),), "names": names}
+def _vector(dtype: str, names: list[str]) -> dict:
+    return {"dtype": dtype, "shape": (len(names),), "names": list(names)}
+
+
+def _checked_names(what: str, names, dim: int) -> list[str]:
+    names = [str(n) for n in names]
+    if len(names) != dim:
+        raise ValueError(f"frame_features: {what} has {len(names)} names, the dimension is {dim}")
+    if len(set(names)) != dim:
+        raise ValueError(f"frame_features: {what} names repeat: {names}")
+    return names
 
 
 def frame_features(obs_dim: int, goal_dim: int, act_dim: int, n_arms: int,
                    cameras: dict[str, tuple[int, int]] | None = None,
-                   state_names: list[str] | None = None) -> dict[str, dict]:
+                   state_names=None, achieved_goal_names=None, desired_goal_names=None,
+                   action_names=None) -> dict[str, dict]:
     """LeRobot ``features`` dict for one frame (see the module docstring for what each key holds).
 
     ``cameras`` maps a camera name to its (height, width); each becomes a ``video`` feature
-    ``observation.images.<name>``. ``state_names`` names the ``obs_dim`` entries of the state vector.
+    ``observation.images.<name>``. The ``*_names`` name each dimension; datasets recorded from an env take
+    them from :func:`surrol_data.envs.names.dimension_names` (the fallbacks only number the dimensions).
     """
     for name, value in (("obs_dim", obs_dim), ("goal_dim", goal_dim), ("act_dim", act_dim), ("n_arms", n_arms)):
         if not isinstance(value, (int, np.integer)) or value < 1:
             raise ValueError(f"frame_features: {name} must be a positive int, got {value!r}")
-    if state_names is None:
-        state_names = [f"s{i}" for i in range(obs_dim)]
-    if len(state_names) != obs_dim:
-        raise ValueError(f"frame_features: state_names has {len(state_names)} names, obs_dim is {obs_dim}")
-    goal = _goal_names(goal_dim)
+    state = _checked_names("state", state_names or [f"state_{i}" for i in range(obs_dim)], obs_dim)
+    achieved = _checked_names("achieved goal", achieved_goal_names or _goal_names(goal_dim, "achieved"), goal_dim)
+    desired = _checked_names("desired goal", desired_goal_names or _goal_names(goal_dim, "goal"), goal_dim)
+    environment = _checked_names("environment state", [*achieved, *desired], 2 * goal_dim)
+    action = _checked_names("action", action_names or _action_names(act_dim, n_arms), act_dim)
     arms = _arm_prefixes(n_arms)
     tip = [p + "tip_" + c for p in arms for c in "xyz"]
     jaw = [p + "jaw" for p in arms]
     features = {
-        "observation.state": _vector("float32", list(state_names)),
-        "observation.achieved_goal": _vector("float32", goal),
-        "observation.desired_goal": _vector("float32", goal),
-        "action": _vector("float32", _action_names(act_dim, n_arms)),
-        "next.reward": _vector("float32", None, 1),
-        "next.done": _vector("bool", None, 1),
-        "next.success": _vector("bool", None, 1),
-        "next.observation.state": _vector("float32", list(state_names)),
-        "next.observation.achieved_goal": _vector("float32", goal),
-        "next.observation.desired_goal": _vector("float32", goal),
+        "observation.state": _vector("float32", state),
+        ENV_STATE: _vector("float32", environment),
+        "action": _vector("float32", action),
+        "next.reward": _vector("float32", ["reward"]),
+        "next.done": _vector("bool", ["done"]),
+        "next.truncated": _vector("bool", ["truncated"]),
+        "next.success": _vector("bool", ["success"]),
+        "next.observation.state": _vector("float32", state),
+        NEXT_ENV_STATE: _vector("float32", environment),
         "complementary_info.tip_position": _vector("float32", tip),
         "complementary_info.jaw_angle": _vector("float32", jaw),
         "complementary_info.next_tip_position": _vector("float32", tip),
         "complementary_info.next_jaw_angle": _vector("float32", jaw),
     }
     for flag in DEVICE_FLAGS:
-        features[f"complementary_info.{flag}"] = _vector("bool", None, 1)
+        features[f"complementary_info.{flag}"] = _vector("bool", [flag])
     for cam, hw in (cameras or {}).items():
         if "/" in cam or not cam:
             raise ValueError(f"frame_features: camera name {cam!r} must be non-empty and contain no '/'")
@@ -170,12 +198,31 @@ def frame_features(obs_dim: int, goal_dim: int, act_dim: int, n_arms: int,
     return features
 
 
+def is_schema1(features: dict) -> bool:
+    """Features written by the schema-1 recorder (goals under ``observation.*_goal``)."""
+    return ENV_STATE not in features and "observation.desired_goal" in features
+
+
+def event_features(n_arms: int) -> dict[str, dict]:
+    """The per-frame env events (:data:`~surrol_data.datasets.trajectory.EVENT_FLAGS`) of tasks that grasp: added to
+    :func:`frame_features` by collectors whose env reports grasps. Optional: a dataset without them reads as
+    before, with failed grasps and drops unknown."""
+    arms = _arm_prefixes(n_arms)
+    return {"complementary_info.grasped": {"dtype": "bool", "shape": (n_arms,), "names": [p + "grasped" for p in arms]},
+            "complementary_info.drop": {"dtype": "bool", "shape": (1,), "names": ["drop"]}}
+
+
 def dims_from_features(features: dict) -> dict:
     """Inverse of :func:`frame_features` for the dimensions: obs_dim, goal_dim, act_dim, n_arms, cameras."""
+    if is_schema1(features):
+        raise OutdatedSchemaError("written with surrol_data schema 1 (goals in observation.achieved_goal / "
+                                  "desired_goal, no observation.environment_state): run `surrol-data upgrade "
+                                  "DIR` to rewrite it in the current schema")
     try:
+        env_dim = int(features[ENV_STATE]["shape"][0])
         return {
             "obs_dim": int(features["observation.state"]["shape"][0]),
-            "goal_dim": int(features["observation.desired_goal"]["shape"][0]),
+            "goal_dim": env_dim // 2,
             "act_dim": int(features["action"]["shape"][0]),
             "n_arms": int(features["complementary_info.jaw_angle"]["shape"][0]),
             "cameras": {k.removeprefix("observation.images."): tuple(int(v) for v in ft["shape"][:2])
@@ -183,6 +230,22 @@ def dims_from_features(features: dict) -> dict:
         }
     except KeyError as e:
         raise ValueError(f"features lack {e.args[0]!r}: not a surrol_data frame schema (see frame_features)") from None
+
+
+def names_from_features(features: dict) -> dict:
+    """The ``*_names`` arguments of :func:`frame_features` that rebuild ``features`` (schema 2)."""
+    goal_dim = dims_from_features(features)["goal_dim"]
+    environment = list(features[ENV_STATE]["names"])
+    return {"state_names": list(features["observation.state"]["names"]),
+            "achieved_goal_names": environment[:goal_dim], "desired_goal_names": environment[goal_dim:],
+            "action_names": list(features["action"]["names"])}
+
+
+def split_environment_state(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(achieved goal, desired goal) of ``observation.environment_state`` rows (..., 2 * goal_dim)."""
+    values = np.asarray(values)
+    half = values.shape[-1] // 2
+    return values[..., :half], values[..., half:]
 
 
 def content_hash(frames: dict[str, np.ndarray], features: dict) -> str:

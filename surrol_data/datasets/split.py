@@ -20,7 +20,7 @@ def split_episodes(episodes: pd.DataFrame, valid_fraction: float = 0.1, seed: in
     never all of a group's episodes, so training sees every operator. Same input and seed, same split.
     """
     if not 0.0 < float(valid_fraction) < 1.0:
-        raise ValueError(f"valid_fraction must be between 0 and 1 (exclusive), got {valid_fraction}")
+        raise ValueError(f"--valid-fraction must be between 0 and 1 (exclusive), got {valid_fraction}")
     keys = [k for k in stratify_by if k in episodes.columns]
     rng = np.random.default_rng(seed)
     train: list[int] = []

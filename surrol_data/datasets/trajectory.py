@@ -9,7 +9,8 @@ Shapes (T = number of actions taken):
 * ``tip_position`` (T+1, n_arms, 3) float32: tool-tip positions in metres (world frame) — what the
   proficiency metrics measure. ``jaw_angle`` (T+1, n_arms) float32, radians.
 * ``flags``: per-step device flags, name -> (T,) bool, e.g. ``clutch``, ``jaw_button``. Every trajectory
-  carries the same two names so datasets of different sources merge.
+  carries the same two names so datasets of different sources merge. Where the env reports grasps (PSM tasks)
+  the :data:`EVENT_FLAGS` join them: ``grasped`` (T, n_arms) and ``drop`` (T,).
 * ``images``: optional camera name -> (T+1, H, W, 3) uint8.
 """
 
@@ -20,6 +21,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 DEVICE_FLAGS = ("clutch", "jaw_button")
+# An env made with ``camera=True`` adds the endoscope view as ``obs["image"]``; episodes record it as this camera
+# (the dataset feature ``observation.images.endoscope``).
+ENV_CAMERA = "endoscope"
+# Env events after each action, from the step's info where the env reports grasps: ``grasped`` (T, n_arms) — the
+# arm holds the object; ``drop`` (T,) — a hold was lost while the jaw stayed closed (the env's drop count rose).
+# The proficiency metrics count failed grasps and drops from them; without them those counts are unknown (nan).
+EVENT_FLAGS = ("grasped", "drop")
 
 
 @dataclass
@@ -68,6 +76,7 @@ class TrajectoryBuilder:
     """Accumulates one step at a time and returns a :class:`Trajectory`."""
 
     def __init__(self, obs: dict, tip_position: np.ndarray, jaw_angle: np.ndarray, image: dict | None = None):
+        obs, image = _split_image(obs, image)
         self._obs = {k: [np.asarray(v, np.float32)] for k, v in obs.items()}
         self._tip = [np.asarray(tip_position, np.float32).reshape(-1, 3)]
         self._jaw = [np.asarray(jaw_angle, np.float32).reshape(-1)]
@@ -77,9 +86,15 @@ class TrajectoryBuilder:
         self._success: list[bool] = []
         self._terminated: list[bool] = []
         self._flags: dict[str, list[bool]] = {f: [] for f in DEVICE_FLAGS}
+        self._events: list[tuple[np.ndarray, bool]] = []
+        self._drops = 0   # the env's drop count (0 after a reset)
 
     def add(self, action, obs: dict, reward: float, success: bool, terminated: bool,
-            tip_position, jaw_angle, flags: dict | None = None, image: dict | None = None) -> None:
+            tip_position, jaw_angle, flags: dict | None = None, image: dict | None = None,
+            info: dict | None = None) -> None:
+        """One step. ``info``: the step's info dict; its ``grasped`` and ``drops`` become the :data:`EVENT_FLAGS`
+        (pass it at every step or at none)."""
+        obs, image = _split_image(obs, image)
         self._action.append(np.asarray(action, np.float32))
         for k, v in obs.items():
             self._obs[k].append(np.asarray(v, np.float32))
@@ -93,11 +108,19 @@ class TrajectoryBuilder:
             self._flags[name].append(bool(flags.get(name, False)))
         for k, v in (image or {}).items():
             self._images[k].append(v)
+        if info is not None and "grasped" in info:
+            drops = int(np.sum(info.get("drops", 0)))
+            self._events.append((np.atleast_1d(np.asarray(info["grasped"], bool)), drops > self._drops))
+            self._drops = drops
 
     def __len__(self) -> int:
         return len(self._action)
 
     def build(self) -> Trajectory:
+        flags = {k: np.asarray(v, bool) for k, v in self._flags.items()}
+        if self._events and len(self._events) == len(self._action):
+            flags["grasped"] = np.stack([g for g, _ in self._events])
+            flags["drop"] = np.array([d for _, d in self._events], bool)
         return Trajectory(
             observation=np.stack(self._obs["observation"]),
             achieved_goal=np.stack(self._obs["achieved_goal"]),
@@ -108,6 +131,14 @@ class TrajectoryBuilder:
             terminated=np.asarray(self._terminated, bool),
             tip_position=np.stack(self._tip),
             jaw_angle=np.stack(self._jaw),
-            flags={k: np.asarray(v, bool) for k, v in self._flags.items()},
+            flags=flags,
             images={k: np.stack(v) for k, v in self._images.items()},
         )
+
+
+def _split_image(obs: dict, image: dict | None) -> tuple[dict, dict | None]:
+    """The env's ``obs["image"]`` (camera=True) becomes the :data:`ENV_CAMERA` image, not a float observation."""
+    if "image" not in obs:
+        return obs, image
+    rest = {k: v for k, v in obs.items() if k != "image"}
+    return rest, {ENV_CAMERA: np.asarray(obs["image"], np.uint8), **(image or {})}

@@ -21,6 +21,7 @@ Each problem names the file / episode / column and says what to do.
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -46,8 +47,11 @@ from surrol_data.datasets.schema import (
     PROVENANCE_PREFIX,
     SIDECAR_PATH,
     content_hash,
+    ENV_STATE,
+    NEXT_ENV_STATE,
     dims_from_features,
     frame_features,
+    split_environment_state,
 )
 
 REPAIR_HINT = "run `surrol-data repair DIR`"
@@ -61,8 +65,7 @@ _ARROW_TYPE_CHECK = {
 _LEROBOT_DEFAULT = ("timestamp", "frame_index", "episode_index", "index", "task_index")
 _TRACE_DIR = "meta/device_traces"
 _CHAINED = (("observation.state", "next.observation.state"),
-            ("observation.achieved_goal", "next.observation.achieved_goal"),
-            ("observation.desired_goal", "next.observation.desired_goal"),
+            (ENV_STATE, NEXT_ENV_STATE),
             ("complementary_info.tip_position", "complementary_info.next_tip_position"),
             ("complementary_info.jaw_angle", "complementary_info.next_jaw_angle"))
 
@@ -83,23 +86,29 @@ def _listed(items) -> str:
     return ", ".join(str(i) for i in items[:_MAX_LISTED]) + more
 
 
+STAGES = ("files", "provenance", "frames", "episodes", "statistics", "videos", "reward", "lerobot")
+
+
 def validate_dataset(root: str | Path, *, check_reward: bool = True, check_lerobot: bool = True,
-                     check_videos: bool = True) -> list[Problem]:
+                     check_videos: bool = True, progress: Callable[[str], None] | None = None) -> list[Problem]:
     """All problems found in the dataset at ``root`` (empty list: it is valid). See the module docstring.
 
+    ``progress`` is called with the name of each stage of :data:`STAGES` as it starts (for a progress bar).
     Never raises on a damaged dataset: a check that fails unexpectedly is itself reported as a problem.
     """
     root = Path(root)
     try:
-        return _validate(root, check_reward, check_lerobot, check_videos)
+        return _validate(root, check_reward, check_lerobot, check_videos, progress or (lambda stage: None))
     except Exception as e:  # noqa: BLE001 - the promise is a list of problems, never a traceback
         return [Problem("internal", str(root), f"validation stopped on {type(e).__name__}: {e}; the dataset is "
                                                f"damaged in a way no check names yet: try `surrol-data repair "
                                                f"{root}`")]
 
 
-def _validate(root: Path, check_reward: bool, check_lerobot: bool, check_videos: bool) -> list[Problem]:
+def _validate(root: Path, check_reward: bool, check_lerobot: bool, check_videos: bool,
+              stage: Callable[[str], None]) -> list[Problem]:
     problems: list[Problem] = []
+    stage("files")
     try:
         info = load_info(root)
     except DatasetError as e:
@@ -121,6 +130,7 @@ def _validate(root: Path, check_reward: bool, check_lerobot: bool, check_videos:
     schema_problems = _check_schema(info)
     if schema_problems:
         return problems + schema_problems
+    stage("provenance")
     meta_tables = []
     for path in parquet_files(root, EPISODES_DIR):
         table = pq.read_table(path)
@@ -131,6 +141,7 @@ def _validate(root: Path, check_reward: bool, check_lerobot: bool, check_videos:
     column_problems = _check_columns(root, info)
     if column_problems:
         return problems + column_problems
+    stage("frames")
     data = _read_data(root, info)
     problems += _check_tasks(root, info, meta, data)
     count_problems = _check_counts(info, meta, data)
@@ -139,17 +150,22 @@ def _validate(root: Path, check_reward: bool, check_lerobot: bool, check_videos:
         return problems  # frame checks would only repeat the mismatch
     problems += _check_locations(root, info, meta, data)
     problems += _check_values(info, data)
+    stage("episodes")
     if not any(p.where.endswith("content_hash") and "missing" in p.message for p in problems):
         problems += _check_episodes(info, meta, data)
+    stage("statistics")
     problems += _check_stats(root, info, meta_full, data)
     side = read_sidecar(root)
     problems += _check_sidecar(root, side, meta)
     problems += _check_traces(root, meta, data)
     if check_videos:
+        stage("videos")
         problems += _check_videos(root, info, meta_full)
     if check_reward:
+        stage("reward")
         problems += _check_reward(side, meta, data)
     if check_lerobot:
+        stage("lerobot")
         problems += _check_lerobot(root, info)
     return problems
 
@@ -171,6 +187,12 @@ def _check_schema(info: dict) -> list[Problem]:
         elif got["dtype"] != want["dtype"] or tuple(got["shape"]) != tuple(want["shape"]):
             problems.append(Problem("schema", key, f"is {got['dtype']}{tuple(got['shape'])}, expected "
                                                    f"{want['dtype']}{tuple(want['shape'])}"))
+        elif want["dtype"] != "video" and (not isinstance(got.get("names"), list)
+                                           or len(got["names"]) != int(np.prod(got["shape"]))
+                                           or len(set(got["names"])) != len(got["names"])):
+            problems.append(Problem("schema", key, f"names {got.get('names')!r} do not name each of its "
+                                                   f"{int(np.prod(got['shape']))} dimensions once; run "
+                                                   "`surrol-data upgrade DIR`"))
     for key in ("timestamp", "frame_index", "episode_index", "index", "task_index"):
         if key not in features:
             problems.append(Problem("schema", key, "LeRobot bookkeeping feature missing from meta/info.json"))
@@ -656,7 +678,24 @@ def _check_values(info: dict, data: pa.Table) -> list[Problem]:
             rows = np.flatnonzero(differs)
             problems.append(Problem("values", f"column {nxt}", "differs from the next frame's " + now + " at " + _listed(
                 f"episode {episodes[r]} frame {frames[r]}" for r in rows) + "; s_{t+1} must be the next s_t"))
+    problems += _check_truncated(data, episodes, frames)
     return problems
+
+
+def _check_truncated(data: pa.Table, episodes: np.ndarray, frames: np.ndarray) -> list[Problem]:
+    """``next.truncated`` is true exactly on the last frame of an episode that ended without terminating."""
+    if "next.truncated" not in data.column_names or "next.done" not in data.column_names:
+        return []
+    truncated = column_to_numpy(data.column("next.truncated")).reshape(-1).astype(bool)
+    done = column_to_numpy(data.column("next.done")).reshape(-1).astype(bool)
+    last = np.append(episodes[1:] != episodes[:-1], True)
+    bad = np.flatnonzero(truncated != (last & ~done))
+    if not len(bad):
+        return []
+    return [Problem("values", "column next.truncated", "must be true only on the last frame of an episode that "
+                                                       "did not terminate (next.done false), at " + _listed(
+        f"episode {episodes[r]} frame {frames[r]} (stored {bool(truncated[r])})" for r in bad)
+                    + "; re-record the episode or rewrite the column")]
 
 
 def _check_reward(side: dict, meta: pa.Table, data: pa.Table) -> list[Problem]:
@@ -677,8 +716,8 @@ def _check_reward(side: dict, meta: pa.Table, data: pa.Table) -> list[Problem]:
         return [Problem("reward", f"env {env_id}", f"cannot be made ({type(e).__name__}: {e}); is the task "
                                                    "registered in surrol_data.envs?")]
     try:
-        achieved = column_to_numpy(data.column("next.observation.achieved_goal")).reshape(data.num_rows, -1)
-        desired = column_to_numpy(data.column("next.observation.desired_goal")).reshape(data.num_rows, -1)
+        environment = column_to_numpy(data.column(NEXT_ENV_STATE)).reshape(data.num_rows, -1)
+        achieved, desired = split_environment_state(environment)
         expected = np.asarray(env.unwrapped.compute_reward(achieved, desired, None), dtype=np.float32).reshape(-1)
     finally:
         env.close()

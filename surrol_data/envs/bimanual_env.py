@@ -32,30 +32,13 @@ from surrol_data.envs.adaptive_steps import SubstepPlanner
 from surrol_data.envs.ecm import SceneEndoscope
 from surrol_data.envs.grasp import Grasp
 from surrol_data.envs.psm import Psm
-from surrol_data.envs.psm_env import (PSM1_RCM, WORKSPACE_MARGIN, PsmEnv, tip_orientation_features, tool_down,
-                                      wrap_angle)
+from surrol_data.envs.psm_env import (ACTION_PITCH_RAD, PITCH_LIMIT_RAD, PSM1_RCM, ROTATION_MODES,  # noqa: F401
+                                      WORKSPACE_MARGIN, PsmEnv, approach_direction, tilted_tool,
+                                      tip_orientation_features, tool_down, wrap_angle)
 from surrol_data.envs.units import ACTION_POSITION_M, ACTION_YAW_RAD, SCALING
 
 # PSM2 mirrors PSM1 across the table's centre line (reference RCM points (0.507, ±0.0736, 0.8524) m).
 PSM2_RCM = PSM1_RCM * np.array([1.0, -1.0, 1.0])
-# Pitch mode: one unit of action tilts the tool 15° (the reference's pitch step), within ±90° of vertical.
-ACTION_PITCH_RAD = np.deg2rad(15.0)
-PITCH_LIMIT_RAD = np.pi / 2
-ROTATION_MODES = ("yaw", "pitch")
-
-
-def tilted_tool(pitch: float) -> np.ndarray:
-    """Tip rotation of a pitch-mode arm: the tool-down frame (jaw opening along world x) tilted about world x.
-
-    A positive pitch swings the tip's approach direction towards +y.
-    """
-    c, s = np.cos(pitch), np.sin(pitch)
-    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]]) @ tool_down(0.0)
-
-
-def approach_direction(pitch: float) -> np.ndarray:
-    """Unit vector along which a pitch-mode tool points (wrist → jaw tips), world frame."""
-    return tilted_tool(pitch)[:, 2]
 
 
 @dataclass(frozen=True)

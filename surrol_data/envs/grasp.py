@@ -41,10 +41,13 @@ _TOWARDS_OTHER = (-1.0, 1.0)
 
 
 class Grasp:
-    def __init__(self, client, psm, object_id: int, lift_condition: Callable[[], bool] | None = None):
+    def __init__(self, client, psm, object_id: int, lift_condition: Callable[[], bool] | None = None,
+                 object_link: int = -1):
         self.client = client
         self.psm = psm
         self.object_id = object_id
+        self.object_link = object_link   # -1: the object's base; else a link of it (a drawer's handle)
+        self.max_slip_m = physics.GRASP_MAX_SLIP_M
         self.lift_condition = lift_condition or (lambda: True)
         self.constraint: int | None = None
         self.welded = False              # the full-strength weld (after the lift condition), not the grip
@@ -98,7 +101,7 @@ class Grasp:
         elif self.constraint is None:
             if self.between_blades():
                 self._attach(physics.GRASP_FRICTION_FORCE)
-        elif self.slip_m() > physics.GRASP_MAX_SLIP_M:
+        elif self.slip_m() > self.max_slip_m:
             self.drops += 1
             self.release()
         elif not self.welded and self.lift_condition():
@@ -116,7 +119,10 @@ class Grasp:
     def _relative_pose(self):
         c = self.client
         eef = c.getLinkState(self.psm.body, EEF_LINK, computeForwardKinematics=True)
-        obj_pos, obj_quat = c.getBasePositionAndOrientation(self.object_id)
+        if self.object_link < 0:
+            obj_pos, obj_quat = c.getBasePositionAndOrientation(self.object_id)
+        else:
+            obj_pos, obj_quat = c.getLinkState(self.object_id, self.object_link, computeForwardKinematics=True)[:2]
         inv_pos, inv_quat = c.invertTransform(eef[4], eef[5])
         return c.multiplyTransforms(inv_pos, inv_quat, obj_pos, obj_quat)
 
@@ -124,7 +130,7 @@ class Grasp:
         c = self.client
         # Object pose in the wrist frame, so the constraint keeps the grasp exactly as found.
         rel_pos, rel_quat = self._relative_pose()
-        self.constraint = c.createConstraint(self.psm.body, EEF_LINK, self.object_id, -1, c.JOINT_FIXED,
+        self.constraint = c.createConstraint(self.psm.body, EEF_LINK, self.object_id, self.object_link, c.JOINT_FIXED,
                                              [0, 0, 0], rel_pos, [0, 0, 0],
                                              parentFrameOrientation=rel_quat)
         c.changeConstraint(self.constraint, maxForce=max_force)
@@ -135,7 +141,7 @@ class Grasp:
 
     def _set_jaw_collisions(self, enabled: bool) -> None:
         for j in JAW_JOINTS:
-            self.client.setCollisionFilterPair(self.psm.body, self.object_id, j, -1, int(enabled))
+            self.client.setCollisionFilterPair(self.psm.body, self.object_id, j, self.object_link, int(enabled))
 
     def release(self) -> None:
         if self.constraint is not None:

@@ -45,6 +45,26 @@ def tool_down(yaw: float) -> np.ndarray:
     return kin.rot_z3(yaw) @ _TOOL_DOWN
 
 
+# Pitch mode: one unit of action tilts the tool 15° (the reference's pitch step), within ±90° of vertical.
+ACTION_PITCH_RAD = np.deg2rad(15.0)
+PITCH_LIMIT_RAD = np.pi / 2
+ROTATION_MODES = ("yaw", "pitch")
+
+
+def tilted_tool(pitch: float) -> np.ndarray:
+    """Tip rotation of a pitch-mode arm: the tool-down frame (jaw opening along world x) tilted about world x.
+
+    A positive pitch swings the tip's approach direction towards +y.
+    """
+    c, s = np.cos(pitch), np.sin(pitch)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]]) @ tool_down(0.0)
+
+
+def approach_direction(pitch: float) -> np.ndarray:
+    """Unit vector along which a pitch-mode tool points (wrist → jaw tips), world frame."""
+    return tilted_tool(pitch)[:, 2]
+
+
 def wrap_angle(a):
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
 
@@ -56,9 +76,14 @@ class PsmEnv(gym.Env):
     OBJECT_OBS = True         # 19-D observation with object terms (else 7-D)
     BLOCK_JAW = False         # jaw forced closed, no grasping (NeedleReach)
     FIXED_YAW = False         # yaw action ignored
+    # "yaw": d_rot turns the downward tool about the vertical (30° per unit); "pitch": it tilts the tool about
+    # world x (15° per unit, jaw opening along world x), reported as the orientation's roll term.
+    ROTATION_MODE = "yaw"
     ORACLE_GAIN = 0.4
+    ORACLE_TURN_GAIN = 0.4    # the oracle's largest rotation action per step
     ACTION_DIM = 5            # per arm 5; the bimanual base sets 10
     OBSERVATION_DIM = 0       # 0: 19 with object terms, else 7; the bimanual base sets 35
+    GOAL_DIM = 3              # a point (the goal marker shows its first three terms)
     # Instrumentation: when set (on an instance), called as ``substep_hook(env)`` after every physics substep
     # (benchmarks/physics_realism.py probes contacts there). Unset, it costs one attribute test per substep.
     substep_hook = None
@@ -79,7 +104,7 @@ class PsmEnv(gym.Env):
         self.endoscope = SceneEndoscope(self.client, camera_size, scene_scale=SCALING,
                                         renderer=camera_renderer) if camera else None
         self._tip = np.eye(4)
-        self.goal = np.zeros(3)
+        self.goal = np.zeros(self.GOAL_DIM)
         self._waypoints: list[dict] = []
         self._wp_index = 0
         self._hold = 0
@@ -87,7 +112,8 @@ class PsmEnv(gym.Env):
         obs_dim = self.OBSERVATION_DIM or (19 if self.OBJECT_OBS else 7)
         box = lambda n: spaces.Box(-np.inf, np.inf, shape=(n,), dtype=np.float32)  # noqa: E731
         self.observation_space = spaces.Dict(
-            {"observation": box(obs_dim), "achieved_goal": box(3), "desired_goal": box(3)})
+            {"observation": box(obs_dim), "achieved_goal": box(self.GOAL_DIM),
+             "desired_goal": box(self.GOAL_DIM)})
         if self.endoscope is not None:
             w, h = self.endoscope.size
             self.observation_space["image"] = spaces.Box(0, 255, shape=(h, w, 3), dtype=np.uint8)
@@ -128,6 +154,10 @@ class PsmEnv(gym.Env):
         """Waypoints for the oracle, computed at reset from the settled scene."""
         return []
 
+    def goal_marker_position(self) -> np.ndarray:
+        """Where the green goal sphere is drawn (real metres): the goal, for tasks whose goal is one point."""
+        return self.goal[:3]
+
     def grasp_lift_condition(self) -> bool:
         """The task's condition for welding an object the blades hold (reference §3), e.g. the needle lifted
         5 mm by the squeezing jaws. ``object_start_z`` is the achieved goal's height when the episode began."""
@@ -153,7 +183,7 @@ class PsmEnv(gym.Env):
         self.respawn_objects()
         self.grasp.object_id = self.object_id
         tip, yaw, jaw = self.reset_task(self.np_random)
-        sol = self.psm.ik(kin.pose_from(tip, tool_down(yaw)))
+        sol = self.psm.ik(kin.pose_from(tip, self.tool_rotation(yaw)))
         if not sol.within_limits:
             raise RuntimeError(f"initial tip position {tip} is outside the PSM's reach; check the task's workspace")
         self.psm.reset_joints(sol.q, jaw)
@@ -168,7 +198,8 @@ class PsmEnv(gym.Env):
         """After the scene has settled: draw the goal, plan the oracle, and return the first (obs, info)."""
         self.goal = np.asarray(self.sample_goal(self.np_random), dtype=np.float64)
         self.object_start_z = float(self.achieved_goal()[2])
-        self.client.resetBasePositionAndOrientation(self.goal_marker, (self.goal * SCALING).tolist(), [0, 0, 0, 1])
+        marker = self.goal_marker_position()
+        self.client.resetBasePositionAndOrientation(self.goal_marker, (marker * SCALING).tolist(), [0, 0, 0, 1])
         self._waypoints = self.plan_oracle()
         self._wp_index = 0
         self._hold = 0
@@ -243,14 +274,25 @@ class PsmEnv(gym.Env):
         pose = self._tip
         target = pose[:3, 3] + action[:3] * ACTION_POSITION_M
         target = np.clip(target, WORKSPACE[:, 0] - WORKSPACE_MARGIN[:, 0], WORKSPACE[:, 1] + WORKSPACE_MARGIN[:, 1])
-        yaw = tip_orientation_features(pose[:3, :3])[2]
-        if not self.FIXED_YAW:
-            yaw = yaw + action[3] * ACTION_YAW_RAD
-        self.psm.command_tip(kin.pose_from(target, tool_down(yaw)), ramp=True)
+        features = tip_orientation_features(pose[:3, :3])
+        if self.ROTATION_MODE == "pitch":
+            angle = float(np.clip(features[0] + action[3] * ACTION_PITCH_RAD, -PITCH_LIMIT_RAD, PITCH_LIMIT_RAD))
+        else:
+            angle = features[2] + (0.0 if self.FIXED_YAW else action[3] * ACTION_YAW_RAD)
+        self.psm.command_tip(kin.pose_from(target, self.tool_rotation(angle)), ramp=True)
         if self.BLOCK_JAW or action[4] < 0:
             self.psm.command_jaw(physics.JAW_CLOSED_RAD)
         else:
             self.psm.command_jaw(physics.JAW_OPEN_RAD)
+
+    def tool_rotation(self, angle: float) -> np.ndarray:
+        """Tip rotation for the controlled angle (yaw, or tilt in pitch mode)."""
+        return tilted_tool(angle) if self.ROTATION_MODE == "pitch" else tool_down(angle)
+
+    @property
+    def angle_index(self) -> int:
+        """Where the controlled angle sits in the observation (orientation roll term in pitch mode, else yaw)."""
+        return 3 if self.ROTATION_MODE == "pitch" else 5
 
     def robot_state(self) -> np.ndarray:
         pose = self._tip
@@ -306,14 +348,15 @@ class PsmEnv(gym.Env):
     def _waypoint_action(self, wp: dict, obs: dict) -> tuple[np.ndarray, bool]:
         """The oracle's action towards waypoint ``wp`` and whether the tip is already within its tolerances."""
         state = obs["observation"]
-        tip, yaw = state[:3].astype(np.float64), float(state[5])
+        tip, yaw = state[:3].astype(np.float64), float(state[self.angle_index])
         target = wp["target"](obs) if callable(wp["target"]) else wp["target"]
         err = target - tip
         yaw_err = float(wrap_angle(wp.get("yaw", yaw) - yaw))
         reached = np.linalg.norm(err) < wp.get("tol", 1e-3) and abs(yaw_err) < wp.get("yaw_tol", 0.05)
         delta = err / ACTION_POSITION_M
         delta = delta / max(1.0, np.abs(delta).max()) * wp.get("gain", self.ORACLE_GAIN)
-        d_yaw = np.clip(yaw_err / ACTION_YAW_RAD, -0.4, 0.4)
+        unit = ACTION_PITCH_RAD if self.ROTATION_MODE == "pitch" else ACTION_YAW_RAD
+        d_yaw = np.clip(yaw_err / unit, -self.ORACLE_TURN_GAIN, self.ORACLE_TURN_GAIN)
         return np.array([*delta, d_yaw, wp["jaw"]], dtype=np.float32), reached
 
     def _idle_action(self) -> np.ndarray:

@@ -1,8 +1,9 @@
 """Roll a policy out in an env and score it with the same metrics that score human demos.
 
-A policy is any callable ``obs_dict -> action``, or the string ``"oracle"`` for the env's scripted
-oracle (``env.unwrapped.oracle_action``). :func:`load_policy` turns a spec from the command line
-(``"oracle"`` or a checkpoint path) into one of those.
+A policy is any callable ``obs_dict -> action`` (one with a ``reset()`` method, e.g. a chunking LeRobot
+policy, is reset at every episode start), or the string ``"oracle"`` for the env's scripted oracle
+(``env.unwrapped.oracle_action``). :func:`load_policy` turns a spec from the command line (``"oracle"``,
+``"lerobot:DIR"`` or a checkpoint path) into one of those.
 """
 
 from __future__ import annotations
@@ -23,12 +24,18 @@ Policy = Callable[[dict], np.ndarray]
 
 
 def load_policy(spec: str | Path) -> Policy | str:
-    """``"oracle"`` stays the string (it is bound to an env at rollout time); anything else is a BC checkpoint path."""
+    """``"oracle"`` stays the string (it is bound to an env at rollout time); ``"lerobot:DIR"`` is a policy trained
+    by ``lerobot-train`` (:mod:`surrol_data.evaluation.lerobot_policy`); anything else is a BC checkpoint path."""
     if str(spec) == ORACLE:
         return ORACLE
+    if str(spec).startswith("lerobot:"):
+        from surrol_data.evaluation.lerobot_policy import load_lerobot_policy
+
+        return load_lerobot_policy(str(spec))
     path = Path(spec)
     if not path.is_file():
-        raise FileNotFoundError(f"policy spec {str(spec)!r} is neither {ORACLE!r} nor an existing checkpoint file")
+        raise FileNotFoundError(f"policy spec {str(spec)!r} is neither {ORACLE!r}, lerobot:DIR nor an existing "
+                                "checkpoint file")
     from surrol_data.algos.bc import BCPolicy  # only checkpoint users pay for importing torch
 
     return BCPolicy.load(path)
@@ -46,6 +53,9 @@ def rollout(env: gym.Env, policy: Policy | str, seed: int, max_steps: int | None
     space = env.action_space
 
     obs, info = env.reset(seed=seed)
+    reset = getattr(act, "reset", None)
+    if callable(reset):
+        reset()  # stateful policies (action chunks, history) start each episode afresh
     builder = TrajectoryBuilder(obs, info["tip_position"], info["jaw_angle"])
     while max_steps is None or len(builder) < max_steps:
         action = np.asarray(act(obs), np.float32)
@@ -54,7 +64,8 @@ def rollout(env: gym.Env, policy: Policy | str, seed: int, max_steps: int | None
         # Record exactly what the env executes: the env clips too, but the trajectory must hold the clipped value.
         action = np.clip(action, space.low, space.high)
         obs, reward, terminated, truncated, info = env.step(action)
-        builder.add(action, obs, reward, info["is_success"], terminated, info["tip_position"], info["jaw_angle"])
+        builder.add(action, obs, reward, info["is_success"], terminated, info["tip_position"], info["jaw_angle"],
+                    info=info)
         if terminated or truncated:
             break
     return builder.build()
@@ -93,7 +104,7 @@ def evaluate(env_id: str, policy: Policy | str, episodes: int, seed: int = EVAL_
         policy = load_policy(policy)
     import surrol_data.envs  # noqa: F401  (registers the SurRoL/* ids)
 
-    kwargs = dict(env_kwargs or {})
+    kwargs = {**getattr(policy, "env_kwargs", {}), **(env_kwargs or {})}  # e.g. a camera the policy looks through
     if max_steps is not None:
         kwargs["max_episode_steps"] = max_steps
     env = gym.make(env_id, **kwargs)

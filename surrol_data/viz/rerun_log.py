@@ -239,7 +239,9 @@ def _log_episode(rec: rr.RecordingStream, name: str, label: str, traj: Trajector
     rec.send_columns(f"plots/{name}/jaw_angle", indexes=states, columns=rr.Scalars.columns(scalars=jaw))
 
     flag_names = list(DEVICE_FLAGS) + sorted(set(traj.flags) - set(DEVICE_FLAGS))
-    flags = np.stack([np.asarray(traj.flags[f], np.float64) for f in flag_names], axis=1)
+    # event flags may have one column per arm (grasped): plotted as "any arm"
+    flags = np.stack([np.asarray(traj.flags[f], np.float64).reshape(len(traj), -1).max(axis=1, initial=0.0)
+                      for f in flag_names], axis=1)
     # Step-like points, not lines: a flag is an on/off state per step, interpolating between steps would lie.
     rec.log(f"plots/{name}/flags", rr.SeriesPoints(names=flag_names, marker_sizes=[3.0] * len(flag_names)),
             static=True)

@@ -14,8 +14,12 @@ scene's exact numbers:
 * **buttons**: button 1 to close the jaw on the object; button 2 (clutch) to re-centre the hand when the next
   move would run into the edge of the stylus' workspace — experts re-position before a long move, novices
   when they hit the edge;
-* **recover**: when the object does not come along as the tool lifts (``info["grasped"]`` is false), open,
+* **recover**: when the object does not come along as the tool lifts or pulls (``info["grasped"]`` is false), open,
   back off, re-approach the object where it now lies, and grasp again; give up after a few failures.
+
+What the operator sees of a task comes through a view (:mod:`.views`): one PSM as it is, one arm of a bimanual
+task (two operators made the hands of one person with :meth:`SimulatedOperator.work_together` share the
+plan's steps), or the camera of an ECM task (its one step: null the task's ``action_error``).
 
 The operator keeps its own clock; every random draw comes from a generator seeded by (seed, operator
 identity, the episode's first observation), so the same operator on the same episode makes the same frames.
@@ -33,21 +37,19 @@ from surrol_data.collect.devices.base import BUTTON_CLUTCH, BUTTON_JAW, Device, 
 from surrol_data.collect.mapping import MappingSettings
 from surrol_data.collect.operator.motor import MIN_JERK_PEAK_SPEED, POSE_DIM, Hand, fitts_duration
 from surrol_data.collect.operator.profiles import OperatorParams, identity_seed, operator_params
+from surrol_data.collect.operator.views import task_view
 from surrol_data.envs.physics import JAW_OPEN_RAD
-from surrol_data.envs.psm_env import PsmEnv, wrap_angle
-from surrol_data.envs.units import ACTION_POSITION_M, ACTION_YAW_RAD, CONTROL_PERIOD_S
+from surrol_data.envs.psm_env import wrap_angle
 
 # The Touch stylus' usable workspace is about 160 × 120 × 70 mm (x, y, z) around its centre; its last gimbal
 # (the stylus roll that drives the tool's rotation) turns about ±125°.
 DEVICE_HALF_RANGE = np.array([80.0, 60.0, 35.0, 2.2])
 GIMBAL_MARGIN_RAD = 0.2
-# The fastest tool motion the env executes (an action of 1 per step); faster hand motion is clipped away.
-TOOL_MAX_SPEED_MM_S = ACTION_POSITION_M * 1000.0 / CONTROL_PERIOD_S
-TOOL_MAX_YAW_SPEED = ACTION_YAW_RAD / CONTROL_PERIOD_S
 # Observation layout of single-PSM tasks with an object (PsmEnv._get_obs): tip 0:3, tip yaw 5, jaw 6,
 # the object's grasp point 13:16 and its yaw 18.
 _TIP, _YAW, _JAW, _OBJECT_POINT, _OBJECT_YAW = slice(0, 3), 5, 6, slice(13, 16), 18
-_LIFT_TO_NOTICE_MM = 2.0     # a person sees the object stay behind once the tool has risen this much
+_LIFT_TO_NOTICE_MM = 2.0     # a person sees the object stay behind once the tool has moved this much (lifting it,
+                             # or pulling a handle)
 _CLUTCH_SPEED_MM_S = 250.0   # re-centring the hand moves nothing on screen: it goes at ordinary reaching speed
 _CLUTCH_TARGET_MM = 20.0     # and needs no precision (the Fitts width of a re-centring move)
 # A person grasping an object that lies on a surface takes the open jaws down onto the surface before closing
@@ -66,6 +68,7 @@ class _Subgoal:
     yaw_tol: float
     final: bool = False
     anchor: np.ndarray | None = None      # object grasp point and yaw when the target was set (object-relative)
+    snapshot: bool = False                # a callable target fixed where it points when the step begins
 
     def moved_with_object(self, point: np.ndarray, yaw: float) -> "_Subgoal":
         """The same subgoal for an object that has moved since (after a failed grasp pushed it)."""
@@ -76,10 +79,24 @@ class _Subgoal:
                         self.jaw_closed, self.tol_mm, self.yaw_tol, self.final, np.array([*point, yaw]))
 
 
-class SimulatedOperator(Device):
-    """A simulated person operating one PSM of ``env`` through a stylus (see the module docstring).
+class Team:
+    """The two hands of one person on a bimanual task: both follow the task's two-arm plan, and a hand starts
+    step ``i`` only once the other has finished step ``i − 1`` (a hand-over: the receiving hand closes
+    before the giving hand opens). Made by :meth:`SimulatedOperator.work_together`."""
 
-    ``skill`` is a profile of :data:`PROFILES`; ``operator_id`` names the person (their parameters are drawn
+    def __init__(self, members: list["SimulatedOperator"]):
+        self.members = members
+
+    def may_start(self, member: "SimulatedOperator", index: int) -> bool:
+        return all(other._idle or other._index >= index for other in self.members if other is not member)
+
+
+class SimulatedOperator(Device):
+    """A simulated person operating arm ``arm`` of ``env`` (a PSM, or the ECM of a camera task) through a stylus
+    (see the module docstring).
+
+    ``skill`` is a profile of :data:`ALL_PROFILES` (``expert``, ``novice``, ``expert_matched``, ...);
+    ``operator_id`` names the person (their parameters are drawn
     from it); ``mapping`` is the device mapping the session uses (the operator's internal model inverts it);
     ``seed`` makes sessions reproducible. ``overrides`` replaces model parameters (e.g. to make a person who
     misjudges height by 3 mm).
@@ -90,26 +107,24 @@ class SimulatedOperator(Device):
     def __init__(self, env, skill: str, operator_id: str, mapping: MappingSettings, seed: int, arm: int = 0,
                  *, overrides: dict | None = None):
         task = getattr(env, "unwrapped", env)
-        if not isinstance(task, PsmEnv):
-            raise ValueError(f"the simulated operator drives single-PSM tasks only; {type(task).__name__} is not a "
-                             "PsmEnv (ECM tasks are not supported yet: use a human device)")
-        if task.action_space.shape != (5,):
-            raise ValueError(f"{type(task).__name__} takes a {task.action_space.shape} action; the simulated operator "
-                             "drives one PSM (5-D action) — bimanual tasks are not supported yet")
-        if arm != 0:
-            raise ValueError(f"arm={arm}: a single-PSM task has only arm 0")
+        self.view = task_view(task, arm)
         if not isinstance(mapping, MappingSettings):
             raise TypeError(f"mapping must be a MappingSettings, got {type(mapping).__name__}")
         if not isinstance(seed, (int, np.integer)) or seed < 0:
             raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
         self.env = task
         self.mapping = mapping
+        self._model_mapping = self.view.mapping(mapping)   # what the person's internal model inverts
+        self._period = self.view.control_period_s
+        self._max_speed_mm_s = self.view.position_unit_m * 1000.0 / self._period     # an action of 1 per step
+        self._max_angle_speed = self.view.angle_unit_rad / self._period
+        self._team: Team | None = None
         self.skill = skill
         self.operator_id = str(operator_id)
         self.seed = int(seed)
         self.arm = arm
         self.params: OperatorParams = operator_params(skill, self.operator_id, overrides)
-        self._identity = identity_seed(skill, self.operator_id)
+        self._identity = identity_seed(self.params.skill, self.operator_id)
         self._connected = False
         self._clock = 0.0          # the device clock (s): frame timestamps, continuing across episodes
         self._episode_start = 0.0
@@ -118,6 +133,16 @@ class SimulatedOperator(Device):
         self._info: dict = {}
         self._marker = None
         self._events: list[tuple[float, str]] = []
+
+    @staticmethod
+    def work_together(operators: list["SimulatedOperator"]) -> None:
+        """Make ``operators`` (one per arm of a bimanual task) the hands of one person (see :class:`Team`)."""
+        arms = sorted(op.arm for op in operators)
+        if arms != list(range(len(operators))) or len({id(op.env) for op in operators}) != 1:
+            raise ValueError(f"work_together takes one operator per arm of one env, got arms {arms}")
+        team = Team(list(operators))
+        for op in operators:
+            op._team = team
 
     # ------------------------------------------------------------------ Device API
     def connect(self) -> None:
@@ -130,6 +155,7 @@ class SimulatedOperator(Device):
         return {"model": "minimum-jerk submovements (Fitts timing, reaction delay, signal-dependent noise, tremor) "
                          "following the task plan with perception noise, clutching and grasp recovery",
                 "skill": self.skill, "operator_id": self.operator_id, "seed": self.seed, "arm": self.arm,
+                "view": self.view.kind,
                 "device_half_range": DEVICE_HALF_RANGE.tolist(), "params": self.params.as_dict()}
 
     @property
@@ -139,13 +165,16 @@ class SimulatedOperator(Device):
         return tuple(self._events)
 
     def observe(self, obs: dict, info: dict) -> None:
-        self._obs, self._info = obs, info
-        plan = self.env.oracle_waypoints
+        view = self.view
+        self._obs, self._info = view.observation(obs), view.info(info)
         # A reset makes a new plan (new dicts) and a new goal array: that is how a new episode shows itself.
-        marker = plan[0] if plan else self.env.goal
+        marker = view.episode_marker()
         if marker is not self._marker:
             self._marker = marker
-            self._begin_episode(obs, plan)
+            self._begin_episode(self._obs, view.plan())
+            if view.holds_at_start(info):
+                # The task starts with the object in this hand: button 1 is held from the first frame.
+                self._jaw_closed, self._jaw_change_s = True, -np.inf
 
     def read(self) -> DeviceFrame:
         if not self._connected:
@@ -154,9 +183,9 @@ class SimulatedOperator(Device):
             raise DeviceError("the simulated operator has not seen the scene; call observe(obs, info) after every "
                               "env reset and step, before read()")
         # The model runs on episode time from whole steps, so an episode's frames do not depend on the clock.
-        t = self._step * CONTROL_PERIOD_S
+        t = self._step * self._period
         self._step += 1
-        self._clock = self._episode_start + self._step * CONTROL_PERIOD_S
+        self._clock = self._episode_start + self._step * self._period
         self._monitor_grasp(t)
         if t >= self._next_decision_s:
             self._decide(t)
@@ -188,6 +217,7 @@ class SimulatedOperator(Device):
         self._jaw_wait_last = None         # jaw angle at the last check while waiting for the jaw
         self._holding = False              # closed on the object and waiting for it to come along
         self._hold_height = 0.0
+        self._hold_tip = np.zeros(3)
         self._grasp_segment: tuple[int, int] | None = None
         self._failures = 0
         self._depth_bias = p.depth_bias_mm
@@ -200,7 +230,7 @@ class SimulatedOperator(Device):
 
     def _subgoals(self, obs: dict, plan: list[dict]) -> list[_Subgoal]:
         state = np.asarray(obs["observation"], np.float64)
-        has_object = self.env.OBJECT_OBS
+        has_object = self.view.has_object
         anchor = np.array([*state[_OBJECT_POINT], state[_OBJECT_YAW]]) if has_object else None
         if not plan:
             # A reach task (the achieved goal is the tip itself) needs no plan: the goal is the subgoal.
@@ -215,16 +245,17 @@ class SimulatedOperator(Device):
             fixed = not callable(target)
             closes_here = float(wp["jaw"]) < 0 and (i == 0 or float(plan[i - 1]["jaw"]) >= 0)
             approaches = i + 1 < len(plan) and float(wp["jaw"]) >= 0 and float(plan[i + 1]["jaw"]) < 0
-            if fixed and has_object and not self.env.BLOCK_JAW and (closes_here or approaches):
+            if fixed and has_object and self.view.uses_jaw and (closes_here or approaches):
                 target = np.asarray(target, np.float64) - [0.0, 0.0, _GRASP_PRESS_MM / 1000.0]
             goals.append(_Subgoal(
                 target=np.asarray(target, np.float64).copy() if fixed else target,
-                yaw=None if self.env.FIXED_YAW or "yaw" not in wp else float(wp["yaw"]),
-                jaw_closed=(not self.env.BLOCK_JAW) and float(wp["jaw"]) < 0,
+                yaw=None if not self.view.controls_angle or "yaw" not in wp else float(wp["yaw"]),
+                jaw_closed=self.view.uses_jaw and float(wp["jaw"]) < 0,
                 tol_mm=1000.0 * float(wp.get("tol", 1e-3)),
                 yaw_tol=float(wp.get("yaw_tol", 0.05)),
                 final=i == len(plan) - 1,
-                anchor=anchor.copy() if fixed and anchor is not None else None))
+                anchor=anchor.copy() if fixed and anchor is not None else None,
+                snapshot=bool(wp.get("snapshot", False))))
         return goals
 
     # ------------------------------------------------------------------ perceiving
@@ -243,12 +274,13 @@ class SimulatedOperator(Device):
         seen = err + self._rng.normal(0.0, 1.0, 3) * spread
         seen[2] += self._depth_bias    # targets look higher than they are: the tool is stopped short
         # The scene shows the hand's motion up to the previous frame; the rest is still to come.
-        pending = self._hand.remaining(t - CONTROL_PERIOD_S)
+        pending = self._hand.remaining(t - self._period)
         seen -= self._believed_tool_motion(pending)
         if goal.yaw is None:
             return seen, 0.0
         yaw_seen = float(wrap_angle(goal.yaw - state[_YAW])) + p.yaw_noise_rad * self._rng.normal()
-        return seen, yaw_seen - pending[3] * self.mapping.rotation_scale * self.mapping.rotation_sign * self.params.internal_gain
+        m = self._model_mapping
+        return seen, yaw_seen - pending[3] * m.rotation_scale * m.rotation_sign * self.view.angle_ratio * self.params.internal_gain
 
     # ------------------------------------------------------------------ the internal model of the mapping
     def _felt_rotation(self) -> np.ndarray:
@@ -257,23 +289,27 @@ class SimulatedOperator(Device):
 
     def _hand_motion_for(self, tool_mm: np.ndarray, yaw: float) -> np.ndarray:
         """The hand motion the person believes moves the tool by ``tool_mm`` and turns it by ``yaw``."""
-        m, gain = self.mapping, self.params.internal_gain
+        m, gain = self._model_mapping, self.params.internal_gain
         hand = np.zeros(POSE_DIM)
         hand[:3] = m.device_delta_mm(self._felt_rotation() @ tool_mm) / gain
-        hand[3] = yaw / (m.rotation_scale * m.rotation_sign) / gain
+        hand[3] = yaw / (m.rotation_scale * m.rotation_sign * self.view.angle_ratio) / gain
         return hand
 
     def _believed_tool_motion(self, hand: np.ndarray) -> np.ndarray:
-        m = self.mapping
+        m = self._model_mapping
         return self._felt_rotation().T @ (m.tool_delta_mm(hand[:3]) * m.motion_scale * self.params.internal_gain)
 
     # ------------------------------------------------------------------ deciding
     def _decide(self, t: float) -> None:
         """Look at the scene and choose the next action; sets when to look again."""
-        self._next_decision_s = t + CONTROL_PERIOD_S
+        self._next_decision_s = t + self._period
         p = self.params
         while not self._idle:
+            if self._team is not None and not self._team.may_start(self, self._index):
+                return     # the other hand has not finished the previous step yet: wait for it
             goal = self._plan[self._index]
+            if goal.snapshot and callable(goal.target):
+                goal.target = np.asarray(goal.target(self._obs), np.float64).copy()
             if goal.final and self._info.get("is_success", 0.0):
                 self._finish(t, "done")
                 return
@@ -294,7 +330,7 @@ class SimulatedOperator(Device):
                 return
             if goal.jaw_closed != self._jaw_closed:
                 if self._hand.busy_until() > t:        # let the tool come to rest before using the jaw
-                    self._next_decision_s = self._hand.busy_until() + 0.5 * CONTROL_PERIOD_S
+                    self._next_decision_s = self._hand.busy_until() + 0.5 * self._period
                     return
                 if goal.jaw_closed and self._prepare_hand_for_next(t):
                     return
@@ -339,12 +375,13 @@ class SimulatedOperator(Device):
         settled = there or abs(angle - self._jaw_wait_last) < 0.02
         self._jaw_wait_last = angle
         if not settled:
-            self._next_decision_s = t + CONTROL_PERIOD_S
+            self._next_decision_s = t + self._period
             return "moving"
         self._jaw_wait_last = None
         if self._jaw_closed:
             self._holding = True
             self._hold_height = float(self._obs["observation"][2])
+            self._hold_tip = np.asarray(self._obs["observation"][_TIP], np.float64).copy()
             self._grasp_segment = self._segment_ending_at(self._index)
         return "settled"
 
@@ -401,8 +438,11 @@ class SimulatedOperator(Device):
     def _move(self, t: float, goal: _Subgoal, err_mm: np.ndarray, yaw_err: float) -> None:
         p = self.params
         delay = self._reaction() + self._hesitation_once(t, goal)
-        if abs(yaw_err) < max(goal.yaw_tol, p.yaw_accuracy_rad):
-            yaw_err = 0.0     # the orientation looks right: only the position is corrected
+        # The orientation looks right: only the position is corrected. Where the angle is the goal itself (an
+        # ECM roll), the person keeps turning until the scene shows success.
+        accuracy = 0.0 if goal.final and self.view.angle_is_goal else p.yaw_accuracy_rad
+        if abs(yaw_err) < max(goal.yaw_tol, accuracy):
+            yaw_err = 0.0
         hand = self._hand_motion_for(err_mm, yaw_err)
         now, room = self._hand.planned_pose(), self._room()
         end = now + hand
@@ -417,8 +457,8 @@ class SimulatedOperator(Device):
         tol = max(goal.tol_mm, p.accuracy_mm)
         duration = max(fitts_duration(tool_mm + 10.0 * abs(yaw_err), 2.0 * tol, p.fitts_intercept_s,
                                       p.fitts_slope_s_per_bit),
-                       MIN_JERK_PEAK_SPEED * tool_mm / (p.speed_fraction * TOOL_MAX_SPEED_MM_S),
-                       MIN_JERK_PEAK_SPEED * abs(yaw_err) / (p.speed_fraction * TOOL_MAX_YAW_SPEED))
+                       MIN_JERK_PEAK_SPEED * tool_mm / (p.speed_fraction * self._max_speed_mm_s),
+                       MIN_JERK_PEAK_SPEED * abs(yaw_err) / (p.speed_fraction * self._max_angle_speed))
         sub = self._hand.move(t + delay, hand, duration)
         self._corrections += 1
         self._last_move = (np.asarray(self._obs["observation"][_TIP], np.float64).copy(), tool_mm)
@@ -437,9 +477,10 @@ class SimulatedOperator(Device):
             worth = over & (gained > np.array([5.0, 5.0, 5.0, 0.2]))
             return np.where(worth, home, now) if worth.any() else None
         # Otherwise the edge is noticed only when the hand is (almost) there; then every axis that would
-        # overrun is re-centred.
+        # overrun is re-centred. A hand that has most of its room still ahead moves first (truncated): a move
+        # longer than three times the room would otherwise be clutched for again and again from the centre.
         left = room - np.sign(hand) * now          # room still ahead in the direction of the move
-        blocked = over & (left < 0.3 * np.abs(hand))
+        blocked = over & (left < 0.3 * np.abs(hand)) & (left < 0.6 * room)
         if not blocked.any():
             return None
         home = np.where(over, self._rng.normal(0.0, 1.0, POSE_DIM) * np.array([6.0, 6.0, 4.0, 0.1]), now)
@@ -455,17 +496,18 @@ class SimulatedOperator(Device):
         sub = self._hand.move(move_at, home - now, duration)
         self._clutch_from = start
         # Frames read before end + one period still contain hand motion; they must be clutched too.
-        self._clutch_until = sub.end_s + CONTROL_PERIOD_S - 1e-9
+        self._clutch_until = sub.end_s + self._period - 1e-9
         self._events.append((start, "clutch"))
         self._next_decision_s = self._clutch_until + 1e-9
 
     # ------------------------------------------------------------------ failed grasps
     def _monitor_grasp(self, t: float) -> None:
-        """While holding, watch the object: if it stays behind as the tool rises, the grasp failed."""
+        """While holding, watch the object: if it stays behind as the tool moves on (lifts it, pulls it), the grasp
+        failed."""
         if not self._holding or self._idle or self._info.get("grasped", True):
             return
-        risen_mm = (float(self._obs["observation"][2]) - self._hold_height) * 1000.0
-        if risen_mm < _LIFT_TO_NOTICE_MM:
+        moved_mm = np.linalg.norm(np.asarray(self._obs["observation"][_TIP], np.float64) - self._hold_tip) * 1000.0
+        if moved_mm < _LIFT_TO_NOTICE_MM:
             return
         self._recover(t)
 
@@ -489,8 +531,9 @@ class SimulatedOperator(Device):
         state = np.asarray(self._obs["observation"], np.float64)
         point, yaw = state[_OBJECT_POINT], float(state[_OBJECT_YAW])
         start, close = self._grasp_segment
-        self._plan = [*(g.moved_with_object(point, yaw) for g in self._plan[start:close + 1]), *self._plan[close + 1:]]
-        self._index = 0
+        # Indices stay those of the task's plan (the other hand of a bimanual task keeps to them too).
+        self._plan[start:close + 1] = [g.moved_with_object(point, yaw) for g in self._plan[start:close + 1]]
+        self._index = start
         self._corrections = 0
         self._fresh = True
         self._last_move = None
@@ -500,6 +543,6 @@ class SimulatedOperator(Device):
         up_mm = max(p.backoff_mm - risen_mm, 0.0)
         up = self._hand_motion_for(np.array([0.0, 0.0, up_mm]), 0.0)
         up = np.clip(self._hand.planned_pose() + up, -DEVICE_HALF_RANGE, DEVICE_HALF_RANGE) - self._hand.planned_pose()
-        duration = max(MIN_JERK_PEAK_SPEED * up_mm / (p.speed_fraction * TOOL_MAX_SPEED_MM_S), 0.2)
+        duration = max(MIN_JERK_PEAK_SPEED * up_mm / (p.speed_fraction * self._max_speed_mm_s), 0.2)
         sub = self._hand.move(t + delay + 0.1, up, duration)
         self._next_decision_s = sub.end_s + self._hesitation(sub.end_s)

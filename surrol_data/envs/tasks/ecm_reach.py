@@ -54,6 +54,12 @@ class ECMReach(EcmEnv):
         d = np.linalg.norm(np.asarray(achieved_goal) - np.asarray(desired_goal), axis=-1)
         return d < SUCCESS_TOLERANCE_M
 
+    def action_error(self, obs: dict) -> np.ndarray:
+        """(dx, dy, dz, droll) in action units that would bring the EEF onto the goal (what a person aims for)."""
+        achieved_rcm = np.array(self.ecm.world_to_rcm(obs["achieved_goal"]))
+        goal_rcm = np.array(self.ecm.world_to_rcm(obs["desired_goal"]))
+        return np.array([*(goal_rcm - achieved_rcm) / ACTION_POSITION_M, 0.0])
+
     def oracle_action(self, obs: dict) -> np.ndarray:
         """Straight at the goal in the RCM frame, at most ``ORACLE_GAIN`` cm per axis per step (reference gain 0.2)."""
         achieved_rcm = np.array(self.ecm.world_to_rcm(obs["achieved_goal"]))

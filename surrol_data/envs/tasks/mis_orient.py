@@ -63,6 +63,7 @@ class MisOrient(EcmEnv):
     OBS_DIM = 9
     GOAL_DIM = 1
     ORACLE_GAIN = 0.3
+    ACTION_ROTATION_RAD = ACTION_ROLL_RAD   # camera roll of one action unit (devices map hand roll through it)
 
     def build_scene(self) -> None:
         natural = [list(row) for row in ekin.ecm_fk_rows(*NATURAL_JOINTS)]
@@ -96,6 +97,11 @@ class MisOrient(EcmEnv):
 
     def is_success(self, achieved_goal, desired_goal):
         return np.abs(np.asarray(achieved_goal)[..., 0] - np.asarray(desired_goal)[..., 0]) < SUCCESS_TOLERANCE_RAD
+
+    def action_error(self, obs: dict) -> np.ndarray:
+        """(dx, dy, dz, droll) in action units that would make the image upright (what a person aims for)."""
+        error = float(obs["achieved_goal"][0] - obs["desired_goal"][0])
+        return np.array([0.0, 0.0, 0.0, error / ACTION_ROLL_RAD])
 
     def oracle_action(self, obs: dict) -> np.ndarray:
         """Roll by 0.3 of the misorientation per step, at most 3° (a full action).

@@ -72,6 +72,7 @@ class StaticTrack(EcmEnv):
     ORACLE_GAIN = 0.5
     ORACLE_OUTPUT_SCALE = 0.8
     ORACLE_DEADZONE_PX = 1.0
+    ACTION_TRANSLATION_M = CAMERA_STEP_M   # camera motion of one action unit (devices map hand motion through it)
 
     def build_scene(self) -> None:
         half = CUBE_HALF_M * self.CUBE_SCALE
@@ -161,6 +162,15 @@ class StaticTrack(EcmEnv):
         return d < SUCCESS_TOLERANCE
 
     # ------------------------------------------------------------------ oracle
+    def action_error(self, obs: dict) -> np.ndarray:
+        """(right, down, forward, roll) in action units that would centre the target: the sideways camera motion
+        that turns the view onto it (see :meth:`oracle_action`); what a person watching the image aims for."""
+        state = obs["observation"]
+        cx, cy = float(state[7]), float(state[8])
+        lever = math.sqrt(float(state[0]) ** 2 + float(state[1]) ** 2 + float(state[2]) ** 2)
+        return np.array([math.atan(cx * TAN_HALF_FOV) * lever / CAMERA_STEP_M,
+                         math.atan(cy * TAN_HALF_FOV) * lever / CAMERA_STEP_M, 0.0, 0.0])
+
     def oracle_action(self, obs: dict) -> np.ndarray:
         """Image-based visual servoing: turn the view towards the target by ORACLE_GAIN of its angular offset.
 

@@ -1,0 +1,212 @@
+"""Every lerobot internal surrol_data patches or relies on, in one place, checked against one lerobot version.
+
+The recorder needs four things lerobot 0.6 has no public API for (shared/docs/reference/lerobot.md §1–2):
+
+* **per-episode provenance columns**: ``LeRobotDatasetMetadata.save_episode`` is wrapped so extra columns
+  reach ``meta/episodes`` (:func:`attach_episode_columns`), and its ``_metadata_buffer_size`` is set to 1 so
+  an episode's row is flushed with the episode;
+* **whole-episode writes**: ``save_episode(episode_data=...)`` takes a pre-built frame buffer whose layout
+  (:func:`episode_buffer`) is lerobot's own ``add_frame`` accumulator;
+* **cheap checkpoints**: :func:`close_files_and_continue` closes the open parquet writers and sets the writer
+  state (``_latest_episode``, ``latest_episode``, ``episodes``) exactly as ``resume()`` leaves it;
+* **fast saves**: :func:`install_fast_save` guards ``dataset_writer.embed_images``, a per-row map that only
+  matters for ``image`` features.
+
+and the tools use ``compute_stats.aggregate_stats`` / ``io_utils.write_stats`` (repair, upgrade),
+``feature_utils.get_hf_features_from_features`` (upgrade) and ``aggregate.aggregate_datasets`` /
+``io_utils.write_table_one_row_group_per_episode`` (merge; it also repairs two things 0.6.1's aggregation gets
+wrong for our datasets: the data files lose their fixed-size vector types, and the episodes-metadata rows of a
+source recorded in several files name files they are not in). :data:`CHECKED_VERSIONS` lists the lerobot
+releases these were read and tested against; on any other, :func:`check_lerobot` warns once
+(:class:`UntestedLerobotWarning`) and ``tests/test_lerobot_compat.py`` fails, naming what to re-check.
+Each patch also checks that what it touches is there and otherwise falls back to lerobot's public path
+(``finalize`` + ``resume``, the unpatched ``embed_images``) or raises :class:`LerobotIncompatible`.
+"""
+
+from __future__ import annotations
+
+import warnings
+from importlib.metadata import PackageNotFoundError, version
+
+import numpy as np
+
+CHECKED_VERSIONS = ("0.6.1",)
+
+# (module, attribute path) of each internal relied on; tests/test_lerobot_compat.py checks them all.
+INTERNALS = (
+    ("lerobot.datasets.dataset_writer", "embed_images"),
+    ("lerobot.datasets.dataset_writer", "DatasetWriter.close_writer"),
+    ("lerobot.datasets.dataset_writer", "DatasetWriter.flush_pending_videos"),
+    ("lerobot.datasets.dataset_metadata", "LeRobotDatasetMetadata.save_episode"),
+    ("lerobot.datasets.dataset_metadata", "LeRobotDatasetMetadata._close_writer"),
+    ("lerobot.datasets.compute_stats", "aggregate_stats"),
+    ("lerobot.datasets.compute_stats", "compute_episode_stats"),
+    ("lerobot.datasets.io_utils", "write_stats"),
+    ("lerobot.datasets.feature_utils", "get_hf_features_from_features"),
+    ("lerobot.datasets.utils", "create_lerobot_dataset_card"),
+    # merge (surrol_data.datasets.merge): aggregate_datasets itself, and the writer that restores one row group per
+    # episode after its pandas rewrite of the data files
+    ("lerobot.datasets.aggregate", "aggregate_datasets"),
+    ("lerobot.datasets.io_utils", "write_table_one_row_group_per_episode"),
+)
+
+_warned = False
+
+
+class UntestedLerobotWarning(RuntimeWarning):
+    """The installed lerobot is not one of :data:`CHECKED_VERSIONS`."""
+
+
+class LerobotIncompatible(RuntimeError):
+    """An internal the recorder relies on is not in the installed lerobot."""
+
+
+def lerobot_version() -> str:
+    try:
+        return version("lerobot")
+    except PackageNotFoundError:
+        return ""
+
+
+def check_lerobot() -> None:
+    """Warn once when the installed lerobot is not a version these internals were checked against."""
+    global _warned
+    installed = lerobot_version()
+    if installed in CHECKED_VERSIONS or _warned:
+        return
+    _warned = True
+    warnings.warn(f"surrol_data relies on lerobot internals checked against lerobot {', '.join(CHECKED_VERSIONS)}; "
+                  f"lerobot {installed or '(not installed)'} is installed: recording may fall back to slower paths "
+                  "or fail. Install lerobot==" + CHECKED_VERSIONS[-1] + " or re-check "
+                  "surrol_data/datasets/lerobot_compat.py (tests/test_lerobot_compat.py).",
+                  UntestedLerobotWarning, stacklevel=2)
+
+
+def missing_internals() -> list[str]:
+    """The :data:`INTERNALS` the installed lerobot lacks ("module:attr"), empty when all are there."""
+    import importlib
+
+    missing = []
+    for module, path in INTERNALS:
+        try:
+            obj = importlib.import_module(module)
+            for part in path.split("."):
+                obj = getattr(obj, part)
+        except (ImportError, AttributeError):
+            missing.append(f"{module}:{path}")
+    return missing
+
+
+def lerobot_dataset_class():
+    """``LeRobotDataset``, imported on first use (~6 s, ~0.9 GB), after the version check."""
+    check_lerobot()
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    return LeRobotDataset
+
+
+def install_fast_save() -> None:
+    """Skip lerobot's per-row ``embed_images`` map for episodes without ``image`` features.
+
+    The guard calls the original whenever an episode has an ``image`` feature, so it stays correct for any
+    dataset written in the process; nothing is patched when lerobot no longer has the function.
+    """
+    from lerobot.datasets import dataset_writer
+
+    original = getattr(dataset_writer, "embed_images", None)
+    if original is None or getattr(original, "_surrol_guard", False):
+        return
+    import datasets
+
+    def embed_images_if_any(dataset):
+        if any(isinstance(ft, datasets.Image) for ft in dataset.features.values()):
+            return original(dataset)
+        return dataset
+
+    embed_images_if_any._surrol_guard = True
+    dataset_writer.embed_images = embed_images_if_any
+
+
+def attach_episode_columns(ds, columns) -> None:
+    """Make ``ds`` write ``columns()`` (a dict) into each episode's ``meta/episodes`` row, flushed per episode.
+
+    ``columns`` is called inside every ``save_episode``; it raises to refuse an episode saved without them.
+    Call again after each ``resume()`` (a new metadata object).
+    """
+    meta = ds.meta
+    if not hasattr(meta, "_metadata_buffer_size") or not callable(getattr(meta, "save_episode", None)):
+        raise LerobotIncompatible(f"lerobot {lerobot_version()}: LeRobotDatasetMetadata has no save_episode / "
+                                  "_metadata_buffer_size; surrol_data cannot attach provenance columns")
+    # resume() has no metadata_buffer_size argument and defaults to 10; flush every episode instead, so an
+    # error that skips finalize never leaves info.json ahead of meta/episodes.
+    meta._metadata_buffer_size = 1
+    original = meta.save_episode
+
+    def save_episode_with_columns(episode_index, episode_length, episode_tasks, episode_stats, episode_metadata):
+        return original(episode_index, episode_length, episode_tasks, episode_stats,
+                        {**episode_metadata, **columns()})
+
+    meta.save_episode = save_episode_with_columns
+
+
+def episode_buffer(frames: dict[str, np.ndarray], T: int, episode_index: int, task: str, fps: int) -> dict:
+    """The frame buffer ``LeRobotDataset.save_episode(episode_data=...)`` takes: what ``add_frame`` would
+    accumulate for ``frames`` (feature -> (T, ...) arrays already of their declared dtype and shape)."""
+    frame_index = np.arange(T, dtype=np.int64)
+    buffer = {"size": T, "task": [task] * T, "episode_index": episode_index,
+              "frame_index": frame_index, "timestamp": (frame_index / fps).astype(np.float32),
+              # placeholders: save_episode assigns the global index and the task index itself
+              "index": frame_index, "task_index": np.zeros(T, dtype=np.int64)}
+    buffer.update(frames)
+    return buffer
+
+
+def close_files_and_continue(ds) -> bool:
+    """Checkpoint without reloading: close the data and episodes parquet files (writing their footers) and
+    point lerobot's writer at new files for the next episode, exactly where ``resume()`` would.
+
+    ``resume()`` reloads the whole episodes table through ``datasets`` (~1 s, growing with the dataset); this
+    keeps the in-memory metadata instead. Returns False, touching nothing, when lerobot's writer state is not
+    the one checked here (or a streaming / batched video encoder is on); the caller then resumes instead.
+    """
+    writer, meta = getattr(ds, "writer", None), getattr(ds, "meta", None)
+    needed = (hasattr(writer, "close_writer") and hasattr(writer, "_latest_episode")
+              and hasattr(meta, "_close_writer") and hasattr(meta, "latest_episode") and hasattr(meta, "episodes"))
+    if not needed or getattr(writer, "_batch_encoding_size", 1) != 1 or getattr(writer, "_streaming_encoder", None):
+        return False
+    if meta.latest_episode is None:
+        return True  # nothing written since the last checkpoint: every file is already closed
+    writer.flush_pending_videos()
+    writer.close_writer()
+    meta._close_writer()  # flushes the buffered episode rows, then writes the footer
+    # With no "latest episode", lerobot's writers take the last row of meta.episodes and start the next
+    # chunk/file after it, for data, episodes metadata and videos alike — what they do after resume().
+    meta.episodes = [{k: v[0] if isinstance(v, list) else v for k, v in meta.latest_episode.items()}]
+    meta.latest_episode = None
+    writer._latest_episode = None
+    return True
+
+
+def aggregate_stats(stats_list: list[dict]) -> dict:
+    from lerobot.datasets.compute_stats import aggregate_stats as _aggregate
+
+    return _aggregate(stats_list)
+
+
+def compute_episode_stats(frames: dict[str, np.ndarray], features: dict) -> dict:
+    from lerobot.datasets.compute_stats import compute_episode_stats as _compute
+
+    return _compute(frames, features)
+
+
+def write_stats(stats: dict, root) -> None:
+    from lerobot.datasets.io_utils import write_stats as _write
+
+    _write(stats, root)
+
+
+def hf_features(features: dict):
+    """The ``datasets.Features`` lerobot stores a data parquet with (its arrow schema carries them)."""
+    from lerobot.datasets.feature_utils import get_hf_features_from_features
+
+    return get_hf_features_from_features(features)

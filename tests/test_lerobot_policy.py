@@ -1,0 +1,146 @@
+"""A LeRobot policy saved the way lerobot-train saves its checkpoints runs in our env (`lerobot:DIR`), and the
+lerobot-eval env plugin hands lerobot the dataset's own keys. (Training with lerobot-train itself is the slow
+test_lerobot_train.py.)"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from surrol_data.datasets.trajectory import Trajectory
+
+OBS, GOAL, ACT = 19, 3, 5  # NeedlePick's dimensions
+
+
+def _traj(seed: int, T: int = 12, camera: tuple[int, int] | None = None) -> Trajectory:
+    rng = np.random.default_rng(seed)
+    images = {} if camera is None else {"endoscope": rng.integers(0, 255, (T + 1, *camera, 3), dtype=np.uint8)}
+    return Trajectory(images=images,
+        observation=rng.standard_normal((T + 1, OBS)).astype(np.float32),
+        achieved_goal=rng.standard_normal((T + 1, GOAL)).astype(np.float32),
+        desired_goal=rng.standard_normal((T + 1, GOAL)).astype(np.float32),
+        action=rng.uniform(-1, 1, (T, ACT)).astype(np.float32), reward=-np.ones(T, np.float32),
+        success=np.zeros(T, bool), terminated=np.zeros(T, bool),
+        tip_position=rng.standard_normal((T + 1, 1, 3)).astype(np.float32),
+        jaw_angle=rng.uniform(0, 1, (T + 1, 1)).astype(np.float32))
+
+
+def _save_act(base, camera: tuple[int, int] | None = None):
+    """An untrained ACT built from a dataset's metadata and stats, saved with its processors (what a
+    lerobot-train checkpoint's pretrained_model folder holds) under ``base``."""
+    from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
+    from lerobot.policies import ACTConfig, make_policy, make_pre_post_processors
+
+    from surrol_data.collect.recorder import DatasetRecorder
+    from surrol_data.datasets.hub_offline import hub_offline
+    from surrol_data.datasets.schema import frame_features
+
+    root = base / "data"
+    features = frame_features(OBS, GOAL, ACT, 1, cameras={"endoscope": camera} if camera else None)
+    with DatasetRecorder(root, features=features, task="NeedlePick", env_id="SurRoL/NeedlePick-v0",
+                         task_description="pick", handle_signals=False) as rec:
+        for i in range(2):
+            rec.record(_traj(i, camera=camera), {"source": "script", "device": "none", "skill": "scripted", "seed": i})
+    with hub_offline():
+        meta = LeRobotDatasetMetadata("local/data", root=root)
+    config = ACTConfig(device="cpu", pretrained_backbone_weights=None, chunk_size=4, n_action_steps=4, dim_model=32,
+                       dim_feedforward=64, n_heads=2, latent_dim=8, n_encoder_layers=1)
+    policy = make_policy(config, ds_meta=meta)
+    pre, post = make_pre_post_processors(config, dataset_stats=meta.stats)
+    out = base / "checkpoints" / "last" / "pretrained_model"
+    for part in (policy, pre, post):
+        part.save_pretrained(out)
+    return base
+
+
+@pytest.fixture(scope="module")
+def act_dir(tmp_path_factory):
+    return _save_act(tmp_path_factory.mktemp("act"))
+
+
+def test_lerobot_policy_rolls_out_in_our_env_and_restarts_its_chunk_each_episode(act_dir, monkeypatch):
+    import gymnasium as gym
+
+    import surrol_data.envs  # noqa: F401
+    from surrol_data.evaluation.lerobot_policy import LerobotPolicy
+    from surrol_data.evaluation.rollout import evaluate, load_policy, rollout
+
+    policy = load_policy(f"lerobot:{act_dir}")  # the lerobot-train output folder: its last checkpoint
+    assert isinstance(policy, LerobotPolicy) and policy.path.name == "pretrained_model"
+    resets = []
+    monkeypatch.setattr(policy.policy, "reset", lambda original=policy.policy.reset: (resets.append(1), original()))
+    result = evaluate("SurRoL/NeedlePick-v0", policy, episodes=2, max_steps=6, progress=False, keep_trajectories=True)
+    assert len(resets) == 2 and [len(t) for t in result.trajectories] == [6, 6]
+    assert np.isfinite(result.trajectories[0].action).all()
+
+    # after 6 steps of a 4-action chunk, 2 actions are queued: a new episode must not use them
+    env = gym.make("SurRoL/NeedlePick-v0", max_episode_steps=6)
+    try:
+        second = rollout(env, policy, seed=result.seeds[1])
+        fresh = load_policy(f"lerobot:{act_dir}")
+        obs, _ = env.reset(seed=result.seeds[1])
+        assert np.allclose(second.action[0], np.clip(fresh(obs), -1, 1), atol=1e-6)
+    finally:
+        env.close()
+
+
+def test_lerobot_policy_refuses_a_task_of_other_dimensions(act_dir):
+    import gymnasium as gym
+
+    import surrol_data.envs  # noqa: F401
+    from surrol_data.evaluation.lerobot_policy import LerobotPolicy, pretrained_dir
+
+    policy = LerobotPolicy(act_dir)
+    env = gym.make("SurRoL/NeedleReach-v0")
+    try:
+        obs, _ = env.reset(seed=0)
+        with pytest.raises(ValueError, match=r"observation.state of shape \(7,\).*trained on \(19,\)"):
+            policy(obs)
+    finally:
+        env.close()
+    with pytest.raises(FileNotFoundError, match="holds no LeRobot policy"):
+        pretrained_dir(act_dir / "nowhere")
+
+
+def test_a_policy_trained_on_the_endoscope_video_gets_the_camera_at_its_size(tmp_path):
+    from surrol_data.evaluation.rollout import evaluate, load_policy
+
+    policy = load_policy(f"lerobot:{_save_act(tmp_path, camera=(24, 32))}")
+    assert policy.input_shapes["observation.images.endoscope"] == (3, 24, 32)
+    assert policy.env_kwargs == {"camera": True, "camera_size": (32, 24)}  # gym.make takes (width, height)
+    result = evaluate("SurRoL/NeedlePick-v0", policy, episodes=1, max_steps=2, progress=False)
+    assert result.proficiency[0].steps == 2
+
+
+def test_lerobot_eval_plugin_gives_the_dataset_keys():
+    from lerobot.envs.configs import EnvConfig
+    from lerobot.envs.utils import env_to_policy_features, preprocess_observation
+
+    from surrol_data.evaluation.lerobot_env import SurrolEnv
+
+    assert EnvConfig.get_choice_class("surrol") is SurrolEnv  # registered on import, as lerobot's parser does
+    config = SurrolEnv(task="NeedlePick")
+    features = env_to_policy_features(config)
+    assert {k: tuple(ft.shape) for k, ft in features.items()} == {
+        "action": (5,), "observation.state": (19,), "observation.environment_state": (6,)}
+    vec = config.create_envs(n_envs=1)["surrol"][0]
+    try:
+        obs, _ = vec.reset(seed=[5])
+        batch = preprocess_observation(obs)
+        assert set(batch) == {"observation.state", "observation.environment_state"}
+        assert batch["observation.environment_state"].shape == (1, 6)
+        assert list(vec.call("task_description"))[0].startswith("Pick up the needle")
+        _, _, _, _, info = vec.step(np.zeros((1, 5), np.float32))
+        assert "is_success" in info  # what lerobot-eval counts
+    finally:
+        vec.close()
+
+    camera = SurrolEnv(task="NeedlePick", camera_width=32, camera_height=24)
+    assert tuple(env_to_policy_features(camera)["observation.images.endoscope"].shape) == (3, 24, 32)
+    vec = camera.create_envs(n_envs=1)["surrol"][0]
+    try:
+        obs, _ = vec.reset(seed=[5])
+        image = preprocess_observation(obs)["observation.images.endoscope"]
+        assert image.shape == (1, 3, 24, 32) and 0.0 <= float(image.min()) <= float(image.max()) <= 1.0
+    finally:
+        vec.close()

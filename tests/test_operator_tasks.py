@@ -1,0 +1,92 @@
+"""The simulated operator on bimanual and ECM tasks, through the whole haptic path: device frames → mapping →
+env → recorder → a dataset that validates (and a replay of its traces that reproduces it)."""
+
+from __future__ import annotations
+
+import json
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import surrol_data.envs  # noqa: F401  (registers the ids)
+from surrol_data.collect.haptic_source import _human_horizon, collect_haptic
+from surrol_data.collect.mapping import MappingSettings
+from surrol_data.collect.operator import SimulatedOperator
+from surrol_data.datasets.reader import DatasetReader
+from surrol_data.datasets.validate import validate_dataset
+
+
+def _collect(task, out, skill="expert", episodes=1, **kwargs):
+    return collect_haptic(task, episodes, out, device="operator", skill=skill, operator_id=f"{skill}-t",
+                          progress=False, **kwargs)
+
+
+def _devices(reader: DatasetReader, ep: int = 0) -> list[dict]:
+    return json.loads(reader.episodes["device_settings"].iloc[ep])["devices"]
+
+
+def test_two_simulated_hands_hand_the_needle_over_into_a_valid_dataset(tmp_path):
+    out = tmp_path / "regrasp"
+    res = _collect("NeedleRegrasp", out)
+    assert res.kept == 1 and res.failures == 0
+    assert validate_dataset(out) == []
+    reader = DatasetReader(out)
+    ep = reader.episodes
+    assert list(ep["device"]) == ["simulated-operator"] and bool(ep["operator_simulated"].iloc[0])
+    devices = _devices(reader)
+    assert [d["settings"]["arm"] for d in devices] == [0, 1]
+    assert {d["settings"]["view"] for d in devices} == {"bimanual-arm"}
+    traj = reader.trajectory(0)
+    assert traj.is_success and traj.action.shape[1] == 10 and traj.tip_position.shape[1] == 2
+    # Both hands worked: each arm's jaw command changed during the hand-over (PSM2 closed, PSM1 opened).
+    assert (traj.action[:, 4] >= 0).any() and (traj.action[:, 9] < 0).any()
+    # The traces replay into the same episode.
+    replayed = tmp_path / "replayed"
+    collect_haptic("NeedleRegrasp", 1, replayed, device="replay", trace=out, progress=False)
+    np.testing.assert_array_equal(DatasetReader(replayed).trajectory(0).action, traj.action)
+
+
+@pytest.mark.parametrize("task", ["ECMReach", "MisOrient"])
+def test_simulated_operator_drives_the_camera_into_a_valid_dataset(tmp_path, task):
+    out = tmp_path / task
+    res = _collect(task, out)
+    assert res.kept == 1 and res.failures == 0
+    assert validate_dataset(out) == []
+    reader = DatasetReader(out)
+    assert _devices(reader)[0]["settings"]["view"] == "camera"
+    traj = reader.trajectory(0)
+    assert traj.is_success
+    # The camera moved by the hand's motion (the operator did the work, not a zero action that started done).
+    assert np.abs(traj.action).sum() > 1.0
+
+
+def test_team_waits_for_the_other_hand():
+    env = gym.make("SurRoL/BiPegTransfer-v0")
+    try:
+        ops = [SimulatedOperator(env.unwrapped, "expert", "e", MappingSettings(), 0, arm=a) for a in (0, 1)]
+        SimulatedOperator.work_together(ops)
+        ops[0]._index, ops[1]._index = 3, 2
+        ops[0]._idle = ops[1]._idle = False
+        assert not ops[0]._team.may_start(ops[0], 3) and ops[1]._team.may_start(ops[1], 2)
+        with pytest.raises(ValueError, match="one operator per arm"):
+            SimulatedOperator.work_together([ops[0], ops[0]])
+        with pytest.raises(ValueError, match="arm must be 0"):
+            SimulatedOperator(env.unwrapped, "expert", "e", MappingSettings(), 0, arm=2)
+    finally:
+        env.close()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("skill", ["expert", "novice"])
+@pytest.mark.parametrize("task", list(surrol_data.envs.TASKS))
+def test_expert_and_novice_succeed_on_every_task(tmp_path, task, skill):
+    """Five attempts per task and skill: experts at the session's default horizon, novices (who take about
+    twice as long, see the README's operator table) at twice it. Experts succeed in most attempts; novices in
+    some (on the two-arm tasks a novice identity may fail 3–4 of 5 hand-overs)."""
+    eid = surrol_data.envs.env_id(task)
+    horizon = _human_horizon(eid, gym.spec(eid).max_episode_steps) * (2 if skill == "novice" else 1)
+    res = _collect(task, tmp_path / "ds", skill=skill, episodes=5, keep_failures=True, max_attempts=5,
+                   max_steps=horizon)
+    assert res.attempts == 5
+    assert res.attempts - res.failures >= (4 if skill == "expert" else 1), (task, skill, res.failures)
