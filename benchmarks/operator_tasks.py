@@ -4,7 +4,7 @@ Usage: ``uv run python benchmarks/operator_tasks.py [--episodes 5] [--tasks Need
 
 For each task and skill (``expert``, ``novice``) it records ``episodes`` attempts with
 ``collect_haptic(device="operator", keep_failures=True)`` (seeds 0, 1, …; the session's default horizon:
-3× the registered one, twice that for two-arm tasks) into a temporary dataset and reads success, steps to
+3× the registered one in time, twice that for two-arm tasks; or ``--max-steps``) into a temporary dataset and reads success, steps to
 success and tool path back from the episodes' provenance — the numbers ``surrol-data info`` shows. The
 script oracle's row (same seeds, registered horizon) is the reference. Steps and path are mean ± sd over the
 successful episodes. Everything is seeded, so a task's rows do not depend on which other tasks run.
@@ -51,10 +51,10 @@ def oracle_row(task: str, episodes: int) -> dict:
                     np.array([s.path_length_cm for s in scores]))
 
 
-def operator_row(task: str, skill: str, episodes: int, workdir: Path) -> dict:
+def operator_row(task: str, skill: str, episodes: int, workdir: Path, max_steps: int | None = None) -> dict:
     out = workdir / f"{task}_{skill}"
     collect_haptic(task, episodes, out, device="operator", skill=skill, operator_id=f"{skill}-1", seed=0,
-                   keep_failures=True, max_attempts=episodes, progress=False)
+                   keep_failures=True, max_attempts=episodes, progress=False, max_steps=max_steps)
     ep = DatasetReader(out).episodes
     return _summary(ep["success"].to_numpy(), ep["steps_to_success"].to_numpy(float), ep["path_length_cm"].to_numpy())
 
@@ -63,13 +63,16 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--episodes", type=int, default=5)
     parser.add_argument("--tasks", nargs="*", default=list(surrol_data.envs.TASKS))
+    parser.add_argument("--max-steps", type=int, default=None,
+                        help="operators' horizon (default: the haptic session's, see collect_haptic)")
     parser.add_argument("--out", type=Path, default=None, help="also write the table as Markdown here")
     args = parser.parse_args()
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         jobs = [(task, who) for task in args.tasks for who in ("script", *SKILLS)]
         for task, who in track(jobs, description="operators"):
-            row = oracle_row(task, args.episodes) if who == "script" else operator_row(task, who, args.episodes, Path(tmp))
+            row = (oracle_row(task, args.episodes) if who == "script"
+                   else operator_row(task, who, args.episodes, Path(tmp), args.max_steps))
             rows.append({"task": task, "source": who, **row})
     table = Table(title=f"Simulated operators through the haptic path ({args.episodes} episodes each)")
     for col in ("task", "source", "success", "steps to success", "path (cm)"):

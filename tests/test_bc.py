@@ -1,6 +1,5 @@
 """Normaliser, networks, behaviour cloning, and policy rollouts through the real SurRoL envs."""
 
-import time
 
 import gymnasium as gym
 import numpy as np
@@ -75,10 +74,7 @@ SMALL = BCConfig(hidden_sizes=(64, 64), epochs=10, steps_per_epoch=100)
 
 def test_bc_fits_a_linear_mapping():
     obs, goal, action, episode = linear_demos()
-    start = time.perf_counter()
     policy = train_bc(obs, goal, action, BCConfig(), episode_index=episode, progress=False)
-    seconds = time.perf_counter() - start
-    assert seconds < 60, f"2000 BC steps took {seconds:.1f} s; expected a few seconds on 2 cores"
     assert len(policy.log) == 20 and policy.log[-1]["step"] == 2000
     assert policy.log[-1]["train_loss"] < 0.1 * policy.log[0]["train_loss"]
     assert policy.log[-1]["val_loss"] < 2e-3

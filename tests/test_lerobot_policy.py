@@ -12,9 +12,10 @@ from surrol_data.datasets.trajectory import Trajectory
 OBS, GOAL, ACT = 19, 3, 5  # NeedlePick's dimensions
 
 
-def _traj(seed: int, T: int = 12) -> Trajectory:
+def _traj(seed: int, T: int = 12, camera: tuple[int, int] | None = None) -> Trajectory:
     rng = np.random.default_rng(seed)
-    return Trajectory(
+    images = {} if camera is None else {"endoscope": rng.integers(0, 255, (T + 1, *camera, 3), dtype=np.uint8)}
+    return Trajectory(images=images,
         observation=rng.standard_normal((T + 1, OBS)).astype(np.float32),
         achieved_goal=rng.standard_normal((T + 1, GOAL)).astype(np.float32),
         desired_goal=rng.standard_normal((T + 1, GOAL)).astype(np.float32),
@@ -24,10 +25,9 @@ def _traj(seed: int, T: int = 12) -> Trajectory:
         jaw_angle=rng.uniform(0, 1, (T + 1, 1)).astype(np.float32))
 
 
-@pytest.fixture(scope="module")
-def act_dir(tmp_path_factory):
+def _save_act(base, camera: tuple[int, int] | None = None):
     """An untrained ACT built from a dataset's metadata and stats, saved with its processors (what a
-    lerobot-train checkpoint's pretrained_model folder holds)."""
+    lerobot-train checkpoint's pretrained_model folder holds) under ``base``."""
     from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
     from lerobot.policies import ACTConfig, make_policy, make_pre_post_processors
 
@@ -35,12 +35,12 @@ def act_dir(tmp_path_factory):
     from surrol_data.datasets.hub_offline import hub_offline
     from surrol_data.datasets.schema import frame_features
 
-    base = tmp_path_factory.mktemp("act")
     root = base / "data"
-    with DatasetRecorder(root, features=frame_features(OBS, GOAL, ACT, 1), task="NeedlePick",
-                         env_id="SurRoL/NeedlePick-v0", task_description="pick", handle_signals=False) as rec:
+    features = frame_features(OBS, GOAL, ACT, 1, cameras={"endoscope": camera} if camera else None)
+    with DatasetRecorder(root, features=features, task="NeedlePick", env_id="SurRoL/NeedlePick-v0",
+                         task_description="pick", handle_signals=False) as rec:
         for i in range(2):
-            rec.record(_traj(i), {"source": "script", "device": "none", "skill": "scripted", "seed": i})
+            rec.record(_traj(i, camera=camera), {"source": "script", "device": "none", "skill": "scripted", "seed": i})
     with hub_offline():
         meta = LeRobotDatasetMetadata("local/data", root=root)
     config = ACTConfig(device="cpu", pretrained_backbone_weights=None, chunk_size=4, n_action_steps=4, dim_model=32,
@@ -51,6 +51,11 @@ def act_dir(tmp_path_factory):
     for part in (policy, pre, post):
         part.save_pretrained(out)
     return base
+
+
+@pytest.fixture(scope="module")
+def act_dir(tmp_path_factory):
+    return _save_act(tmp_path_factory.mktemp("act"))
 
 
 def test_lerobot_policy_rolls_out_in_our_env_and_restarts_its_chunk_each_episode(act_dir, monkeypatch):
@@ -97,6 +102,16 @@ def test_lerobot_policy_refuses_a_task_of_other_dimensions(act_dir):
         pretrained_dir(act_dir / "nowhere")
 
 
+def test_a_policy_trained_on_the_endoscope_video_gets_the_camera_at_its_size(tmp_path):
+    from surrol_data.evaluation.rollout import evaluate, load_policy
+
+    policy = load_policy(f"lerobot:{_save_act(tmp_path, camera=(24, 32))}")
+    assert policy.input_shapes["observation.images.endoscope"] == (3, 24, 32)
+    assert policy.env_kwargs == {"camera": True, "camera_size": (32, 24)}  # gym.make takes (width, height)
+    result = evaluate("SurRoL/NeedlePick-v0", policy, episodes=1, max_steps=2, progress=False)
+    assert result.proficiency[0].steps == 2
+
+
 def test_lerobot_eval_plugin_gives_the_dataset_keys():
     from lerobot.envs.configs import EnvConfig
     from lerobot.envs.utils import env_to_policy_features, preprocess_observation
@@ -117,5 +132,15 @@ def test_lerobot_eval_plugin_gives_the_dataset_keys():
         assert list(vec.call("task_description"))[0].startswith("Pick up the needle")
         _, _, _, _, info = vec.step(np.zeros((1, 5), np.float32))
         assert "is_success" in info  # what lerobot-eval counts
+    finally:
+        vec.close()
+
+    camera = SurrolEnv(task="NeedlePick", camera_width=32, camera_height=24)
+    assert tuple(env_to_policy_features(camera)["observation.images.endoscope"].shape) == (3, 24, 32)
+    vec = camera.create_envs(n_envs=1)["surrol"][0]
+    try:
+        obs, _ = vec.reset(seed=[5])
+        image = preprocess_observation(obs)["observation.images.endoscope"]
+        assert image.shape == (1, 3, 24, 32) and 0.0 <= float(image.min()) <= float(image.max()) <= 1.0
     finally:
         vec.close()

@@ -9,7 +9,7 @@ from surrol_data.collect.script_source import features_for
 from surrol_data.envs import TASKS, env_id
 from surrol_data.envs.names import dimension_names
 
-ROBOT_TYPES = {"NeedleRegrasp": "dvrk_psm_x2", "BiPegTransfer": "dvrk_psm_x2", "ECMReach": "dvrk_ecm",
+ROBOT_TYPES = {"NeedleRegrasp": "dvrk_psm_x2", "BiPegTransfer": "dvrk_psm_x2", "NeedleRings": "dvrk_psm_x2", "ECMReach": "dvrk_ecm",
                "MisOrient": "dvrk_ecm", "StaticTrack": "dvrk_ecm", "ActiveTrack": "dvrk_ecm"}
 
 

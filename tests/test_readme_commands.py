@@ -1,5 +1,5 @@
 """Every ``surrol-data`` command of the README runs as written — with small sizes (at most 20 collected and 5
-evaluation episodes, training on ``experiment=smoke``), in a scratch folder, each ``bash`` block in README order.
+evaluation episodes, training on ``experiment=smoke``, a study on ``table1_quick``), in a scratch folder, each ``bash`` block in README order.
 
 Left out: the install lines (``pip install uv``, the test suite itself) and the SLURM sweep (no cluster
 here; its composed config is still checked with ``--cfg job``).
@@ -47,6 +47,9 @@ def adapt(command: str, home: Path) -> list[str] | None:
         return None
     if args[1] == "train" and "--cfg" not in args:
         args.append("experiment=smoke")
+    if args[1] == "study":   # the Table I study takes hours: the same pipeline on its tiny config, one seed
+        args[2] = "table1_quick"
+        args += ["--override", "experiment.study.seeds=[0]"]
     if args[1] == "demo":
         args += ["--out", "demo_out", "--num-episodes", "3", "--eval-episodes", "2"]
     for i, arg in enumerate(args[:-1]):

@@ -207,7 +207,7 @@ def test_panel_subtasks_are_done_in_order_by_the_oracle():
     e.close()
 
 
-# The oracle is done within these many steps (48, 35 and 57 on average); the slow test runs the whole horizon.
+# The oracle is done within these many steps (50, 35 and 59 on average); the slow test runs the whole horizon.
 ORACLE_STEPS = {"PickAndPlace": 70, "MatchBoard": 50, "MatchBoardPanel": 75}
 
 
@@ -219,3 +219,37 @@ def test_oracle_success_rate(task, episodes):
     final = [run_oracle(e, seed, steps).successes[-1] for seed in range(episodes)]
     assert np.mean(final) >= 0.95
     e.close()
+
+
+# ---------------------------------------------------------------------------------------------- simulated operators
+def _operator_episode(task: str, skill: str, seed: int) -> bool:
+    """A simulated operator through the haptic session's loop (frames → mapping → env), 3× the horizon."""
+    from surrol_data.collect.mapping import ActionMapper, MappingSettings
+    from surrol_data.collect.operator import SimulatedOperator
+
+    env = gym.make(f"SurRoL/{task}-v0", max_episode_steps=3 * gym.spec(f"SurRoL/{task}-v0").max_episode_steps)
+    op = SimulatedOperator(env.unwrapped, skill, f"{skill}-0", MappingSettings(), seed=0)
+    op.connect()
+    mapper = ActionMapper(op.mapping)
+    obs, info = env.reset(seed=seed)
+    for _ in range(env.spec.max_episode_steps):
+        op.observe(obs, info)
+        obs, _, _, truncated, info = env.step(mapper(op.read()).arm)
+        if info["is_success"] or truncated:
+            break
+    env.close()
+    return bool(info["is_success"])
+
+
+def test_simulated_expert_places_the_match_board_block():
+    assert _operator_episode("MatchBoard", "expert", 1000)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("skill", ["expert", "novice"])
+@pytest.mark.parametrize("task", TASKS)
+def test_simulated_operators_succeed(task, skill):
+    # benchmarks/operator_tasks.py (10 episodes each): experts 9–10/10; novices 10/10, 6/10 (MatchBoard: a block
+    # released more than ~8° off its groove rests on the edge, and the operator model does not re-grasp it) and 8/10.
+    results = [_operator_episode(task, skill, 1000 + k) for k in range(4)]
+    assert sum(results) >= (3 if skill == "expert" else 2), results

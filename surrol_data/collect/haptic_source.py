@@ -124,9 +124,7 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
     seed = first_seed(out, append, seed, "haptic")
     registered = gym.spec(eid).max_episode_steps
     replay_horizon = _replay_horizon(trace) if names == ["replay"] else None
-    # Two hands take turns in a bimanual task (one waits while the other works): twice the single-arm margin.
-    arms = _arms_of(eid)
-    horizon = max_steps or replay_horizon or HUMAN_HORIZON_FACTOR * registered * arms
+    horizon = max_steps or replay_horizon or _human_horizon(eid, registered)
     env = make_env(eid, env_kwargs or {}, max_episode_steps=horizon, **({"render_mode": "human"} if gui else {}))
     try:
         return _Session(env, eid, episodes, out, device, names, operator_id, skill, sides, mapping, trace, seed,
@@ -163,12 +161,18 @@ def parse_mapping(overrides: Sequence[str], base: MappingSettings | None = None)
     return mapping_from_dict(values)
 
 
-def _arms_of(eid: str) -> int:
-    """How many PSMs the task's action drives (an ECM task counts as one tool)."""
+def _human_horizon(eid: str, registered: int) -> int:
+    """A person's horizon: HUMAN_HORIZON_FACTOR × the registered one in time, not steps (an ECM task's 0.1 s steps
+    get twice as many), and twice that where two hands take turns (one waits while the other works)."""
     from importlib import import_module
 
+    from surrol_data.envs.physics import ECM_CONTROL_PERIOD_S
+
     module, name = gym.spec(eid).entry_point.split(":")
-    return max(getattr(import_module(module), name).ACTION_DIM // 5, 1)
+    action_dim = getattr(import_module(module), name).ACTION_DIM
+    if action_dim % 5:      # an ECM task: one camera, 0.1 s steps
+        return round(HUMAN_HORIZON_FACTOR * registered * CONTROL_PERIOD_S / ECM_CONTROL_PERIOD_S)
+    return HUMAN_HORIZON_FACTOR * registered * (action_dim // 5)
 
 
 def _replay_horizon(trace) -> int | None:

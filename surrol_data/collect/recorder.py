@@ -91,6 +91,7 @@ from surrol_data.datasets.schema import (
     SIDECAR_PATH,
     content_hash,
     dims_from_features,
+    is_schema1,
     normalize_provenance,
     package_version,
     utc_now_iso,
@@ -193,6 +194,9 @@ class DatasetRecorder:
 
                 ensure_finished(self.root)  # a killed recording is repaired first (with a message)
             existing = json.loads((self.root / INFO_PATH).read_text())["features"]
+            if is_schema1(existing):
+                raise DatasetError(f"{self.root} was written with surrol_data schema 1: run `surrol-data upgrade "
+                                   f"{self.root}` before adding episodes to it")
             if features is not None:
                 ours = {k: v for k, v in existing.items() if k not in _LEROBOT_DEFAULT_FEATURES}
                 optional = {f"complementary_info.{e}" for e in EVENT_FLAGS} - set(ours)

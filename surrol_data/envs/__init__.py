@@ -23,10 +23,10 @@ TASKS = {
     "NeedleRings": "surrol_data.envs.tasks.needle_rings:NeedleRings",
 }
 # 50 steps (the reference's horizon) unless a task needs longer, sized for people: ActiveTrack follows its target
-# for 500 steps; haptic collection allows 3x the registered horizon, and simulated novices need up to ~430 steps
-# for PickAndPlace (two jacks) or MatchBoardPanel (drawer, then block) and ~180 for MatchBoard (the oracle: 48, 57
-# and 35); PegBoard takes the ring off, turns it and threads it, NeedleRings turns the needle through in steps and
-# hands it off (their oracles need ~40 and ~60 steps).
+# for 500 steps; haptic collection allows 3x the registered horizon, and simulated novices take 406 ± 65 steps on
+# PickAndPlace (two jacks), 362 ± 68 on MatchBoardPanel (drawer, then block) and 183 ± 22 on MatchBoard
+# (benchmarks/operator_tasks.py; the oracle: 50, 59 and 35); PegBoard takes the ring off, turns it and threads
+# it, NeedleRings turns the needle through in steps and hands it off (their oracles need ~40 and ~60 steps).
 LONG_HORIZONS = {"ActiveTrack": 500, "PickAndPlace": 200, "MatchBoard": 100, "MatchBoardPanel": 200,
                  "PegBoard": 100, "NeedleRings": 100}
 DEFAULT_MAX_EPISODE_STEPS = {name: LONG_HORIZONS.get(name, 50) for name in TASKS}

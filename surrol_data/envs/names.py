@@ -18,6 +18,15 @@ _RPY = ("roll", "pitch", "yaw")
 _PSM_ROBOT = (*(f"tip_{c}" for c in _XYZ), *(f"tip_{a}" for a in _RPY), "jaw")
 _PSM_ACTION = ("dx", "dy", "dz", "dyaw", "jaw")
 
+
+def _xyz(prefix: str) -> tuple[str, ...]:
+    return tuple(f"{prefix}_{c}" for c in _XYZ)
+
+
+def _rpy(prefix: str) -> tuple[str, ...]:
+    return tuple(f"{prefix}_{a}" for a in _RPY)
+
+
 # Task -> (the object its observation describes, what its achieved goal measures). ``None``: no object terms.
 _PSM_TASKS = {
     "NeedleReach": (None, "tip"),
@@ -26,6 +35,20 @@ _PSM_TASKS = {
     "PegTransfer": ("block", "block"),
     "NeedleRegrasp": ("needle", "needle_keypoint1"),
     "BiPegTransfer": ("block", "block"),
+    "PickAndPlace": ("jack", "jack"),          # the object terms describe the jack being placed
+    "MatchBoard": ("block", "block"),
+    "MatchBoardPanel": ("block", "block"),
+    "PegBoard": ("ring", "ring"),
+    "NeedleRings": ("needle", "needle_tip"),
+}
+# Tasks whose goals are more than one point, or whose observation appends terms to the base layout:
+# task -> (achieved goal names, desired goal names, state terms after the base layout).
+_GOAL_TERMS = {
+    "PickAndPlace": ((*_xyz("red_jack"), *_xyz("green_jack")), (*_xyz("red_tray"), *_xyz("green_tray")),
+                     (*_xyz("red_jack"), *_xyz("green_jack"))),
+    "MatchBoardPanel": ((*_xyz("block"), *_xyz("handle")), (*_xyz("goal_cell"), *_xyz("goal_handle")),
+                        (*_xyz("handle"), "drawer_opening")),
+    "NeedleRings": ((*_xyz("needle_tip"), "threaded"), (*_xyz("goal"), "goal_threaded"), ()),
 }
 
 
@@ -39,14 +62,6 @@ class DimensionNames:
     n_arms: int  # arms whose tip and jaw the datasets record (1 for the ECM: its camera tip)
 
 
-def _xyz(prefix: str) -> tuple[str, ...]:
-    return tuple(f"{prefix}_{c}" for c in _XYZ)
-
-
-def _rpy(prefix: str) -> tuple[str, ...]:
-    return tuple(f"{prefix}_{a}" for a in _RPY)
-
-
 def _psm(task: str, bimanual: bool) -> DimensionNames:
     obj, achieved = _PSM_TASKS[task]
     arms = ("psm1_", "psm2_") if bimanual else ("",)
@@ -58,7 +73,8 @@ def _psm(task: str, bimanual: bool) -> DimensionNames:
                  *_xyz("keypoint1"), *_rpy("keypoint1"), *_xyz("keypoint2"), *_rpy("keypoint2"))
     else:
         state = (*robot, *_xyz(obj), *_xyz(f"{obj}_from_tip"), *_xyz(f"{obj}_waypoint"), *_rpy(obj))
-    return DimensionNames(state=state, achieved_goal=_xyz(achieved), desired_goal=_xyz("goal"),
+    achieved_names, desired_names, extra = _GOAL_TERMS.get(task, (_xyz(achieved), _xyz("goal"), ()))
+    return DimensionNames(state=(*state, *extra), achieved_goal=achieved_names, desired_goal=desired_names,
                           action=tuple(p + n for p in arms for n in _PSM_ACTION),
                           robot_type="dvrk_psm_x2" if bimanual else "dvrk_psm", n_arms=len(arms))
 

@@ -9,9 +9,13 @@ Every value below says which measurement chose it; ``benchmarks/physics_realism.
 grasps, slip, tracking, measured at every physics step) and ``benchmarks/env_throughput.py`` (speed) watch
 both sides of the trade, and tests/test_physics_realism.py keeps them true.
 
-Measured and rejected (benchmarks/physics_realism.py, 4-episode probes): 24 instead of 12 sub-steps halved
-the speed and left a closed jaw pushed into the pad at 1.2 mm (the arm's motor force, not the step, was
-the cause there); 60 solver iterations and 10× lower arm motor forces changed the overlaps by < 20 %.
+Measured and rejected (benchmarks/physics_realism.py, 3–5-episode probes): a closed jaw sank 1.2–1.8 mm into
+the pad because Bullet's box-box test reports no contact before boxes overlap (fixed by hull blades, see
+shapes.py), not because of the step. Against a tool pressing an object into a static body (pokes, swipes;
+the object sinks 1.5–9 mm), none of these helped enough to keep: 24 or 48 sub-steps, 60 or 200 solver
+iterations (200 halved it at 4× the cost), contact ERP 0.8, contact stiffness on the objects or the statics,
+10× lower arm motor forces (60× lower removed it but the arm then sagged under gravity: tracking error
+> 100 %), 100× lighter links, the MLCP solvers, and the gauze as a rigid body (maximal coordinates).
 """
 
 from __future__ import annotations

@@ -5,8 +5,10 @@
 ``lerobot-train`` output folder (its last checkpoint is used). Nothing is downloaded: the folder must be local.
 
 Each step the env's observation becomes the batch the policy was trained on, under the dataset's keys
-(:mod:`surrol_data.datasets.schema`): ``observation.state`` is the env's ``observation`` and
-``observation.environment_state`` its achieved goal followed by its desired goal. The policy's own
+(:mod:`surrol_data.datasets.schema`): ``observation.state`` is the env's ``observation``,
+``observation.environment_state`` its achieved goal followed by its desired goal, and
+``observation.images.endoscope`` (a policy trained on ``collect --camera`` data) the endoscope image: the env is
+then made with its camera at the size the policy was trained on (:attr:`LerobotPolicy.env_kwargs`). The policy's own
 preprocessor normalises it with the dataset statistics saved at training time, and its postprocessor turns
 the output back into an env action. Chunking policies (ACT) keep a queue of actions, cleared at every
 episode start by :meth:`LerobotPolicy.reset` (``rollout`` calls it after each ``env.reset``).
@@ -19,9 +21,11 @@ from pathlib import Path
 import numpy as np
 
 from surrol_data.datasets.schema import ENV_STATE
+from surrol_data.datasets.trajectory import ENV_CAMERA
 
 PREFIX = "lerobot:"
 _STATE = "observation.state"
+_CAMERA = f"observation.images.{ENV_CAMERA}"
 
 
 def pretrained_dir(path: str | Path) -> Path:
@@ -51,15 +55,16 @@ class LerobotPolicy:
         device = device or ("cuda" if torch.cuda.is_available() else "cpu")
         config = PreTrainedConfig.from_pretrained(self.path, local_files_only=True)
         config.device = device
-        visual = [k for k, ft in config.input_features.items() if ft.type is FeatureType.VISUAL]
-        if visual:
-            raise ValueError(f"{self.path} was trained on camera images ({visual}); `surrol-data eval` feeds "
-                             f"{_STATE} and {ENV_STATE} only: train on a state-only dataset")
-        unknown = sorted(set(config.input_features) - {_STATE, ENV_STATE})
+        unknown = sorted(set(config.input_features) - {_STATE, ENV_STATE, _CAMERA})
         if unknown:
             raise ValueError(f"{self.path} expects inputs {unknown} that a surrol_data env does not produce; "
-                             f"it can use {_STATE} and {ENV_STATE}")
+                             f"it can use {_STATE}, {ENV_STATE} and {_CAMERA}")
         self.input_shapes = {k: tuple(ft.shape) for k, ft in config.input_features.items()}
+        # gym.make arguments the policy needs: the endoscope image at the size it was trained on (C, H, W)
+        self.env_kwargs: dict = {}
+        if _CAMERA in config.input_features:
+            _, height, width = self.input_shapes[_CAMERA]
+            self.env_kwargs = {"camera": True, "camera_size": (width, height)}
         self.action_shape = tuple(config.output_features["action"].shape)
         self.policy = get_policy_class(config.type).from_pretrained(self.path, config=config, local_files_only=True)
         self.policy.eval()
@@ -74,6 +79,11 @@ class LerobotPolicy:
 
     def _batch(self, obs: dict) -> dict:
         values = {_STATE: obs["observation"], ENV_STATE: np.concatenate([obs["achieved_goal"], obs["desired_goal"]])}
+        if _CAMERA in self.input_shapes:
+            if "image" not in obs:
+                raise ValueError(f"the policy at {self.path} sees the endoscope image: make the env with "
+                                 f"{self.env_kwargs} (evaluate() does)")
+            values[_CAMERA] = np.moveaxis(np.asarray(obs["image"]), -1, 0) / 255.0  # HWC uint8 -> CHW in [0, 1]
         batch = {}
         for key, shape in self.input_shapes.items():
             value = np.asarray(values[key], np.float32)

@@ -104,7 +104,7 @@ def evaluate(env_id: str, policy: Policy | str, episodes: int, seed: int = EVAL_
         policy = load_policy(policy)
     import surrol_data.envs  # noqa: F401  (registers the SurRoL/* ids)
 
-    kwargs = dict(env_kwargs or {})
+    kwargs = {**getattr(policy, "env_kwargs", {}), **(env_kwargs or {})}  # e.g. a camera the policy looks through
     if max_steps is not None:
         kwargs["max_episode_steps"] = max_steps
     env = gym.make(env_id, **kwargs)

@@ -100,7 +100,7 @@ PROFILES: dict[str, OperatorParams] = {
 # Calibrated with ``benchmarks/demo_sources.py`` (100 episodes per source, 4 operators × 25).
 MATCHED_PROFILES: dict[str, OperatorParams] = {
     "expert_matched": dataclasses.replace(
-        PROFILES["expert"], speed_fraction=0.38, fitts_intercept_s=0.3, jaw_wait_s=1.0, frame_rotation_spread_deg=2.0,
+        PROFILES["expert"], speed_fraction=0.34, fitts_intercept_s=0.3, jaw_wait_s=1.0, frame_rotation_spread_deg=2.0,
         clutch_margin_mm=3.0),
     "novice_matched": dataclasses.replace(
         PROFILES["novice"], frame_rotation_spread_deg=2.0, internal_gain_spread=0.04, endpoint_sd=0.06, drift_sd=0.03,

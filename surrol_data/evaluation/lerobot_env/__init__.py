@@ -12,7 +12,9 @@ hence this module is one)::
 :class:`LerobotObservation` gives each env's observation the names lerobot's ``preprocess_observation`` maps
 onto the dataset keys the policy was trained on: ``agent_pos`` → ``observation.state``,
 ``environment_state`` (achieved goal then desired goal, as in :mod:`surrol_data.datasets.schema`) →
-``observation.environment_state``. Success is the env's ``info["is_success"]``, which lerobot-eval reads.
+``observation.environment_state`` and, with ``--env.camera_width/height``, ``pixels/endoscope`` →
+``observation.images.endoscope`` (what ``collect --camera`` records). Success is the env's
+``info["is_success"]``, which lerobot-eval reads.
 The proficiency metrics are ``surrol-data eval --policy lerobot:DIR``'s (same env, same seeds policy).
 """
 
@@ -24,9 +26,10 @@ import gymnasium as gym
 import numpy as np
 from lerobot.configs import FeatureType, PolicyFeature
 from lerobot.envs.configs import EnvConfig
-from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 
 from surrol_data.datasets.schema import FPS
+from surrol_data.datasets.trajectory import ENV_CAMERA
 
 
 class LerobotObservation(gym.ObservationWrapper):
@@ -37,15 +40,20 @@ class LerobotObservation(gym.ObservationWrapper):
         spaces = env.observation_space
         goal = spaces["desired_goal"].shape[0]
         box = lambda n: gym.spaces.Box(-np.inf, np.inf, shape=(n,), dtype=np.float32)  # noqa: E731
-        self.observation_space = gym.spaces.Dict({"agent_pos": box(spaces["observation"].shape[0]),
-                                                  "environment_state": box(2 * goal)})
+        named = {"agent_pos": box(spaces["observation"].shape[0]), "environment_state": box(2 * goal)}
+        if "image" in spaces.spaces:
+            named["pixels"] = gym.spaces.Dict({ENV_CAMERA: spaces["image"]})
+        self.observation_space = gym.spaces.Dict(named)
         self.task_description = env.unwrapped.TASK  # the natural-language task lerobot passes to policies
         self.task = self.task_description
 
     def observation(self, observation: dict) -> dict:
-        return {"agent_pos": np.asarray(observation["observation"], np.float32),
-                "environment_state": np.concatenate([observation["achieved_goal"], observation["desired_goal"]]
-                                                    ).astype(np.float32)}
+        named = {"agent_pos": np.asarray(observation["observation"], np.float32),
+                 "environment_state": np.concatenate([observation["achieved_goal"], observation["desired_goal"]]
+                                                     ).astype(np.float32)}
+        if "image" in observation:
+            named["pixels"] = {ENV_CAMERA: np.asarray(observation["image"], np.uint8)}
+        return named
 
 
 @EnvConfig.register_subclass("surrol")
@@ -57,9 +65,12 @@ class SurrolEnv(EnvConfig):
     fps: int = FPS
     episode_length: int | None = None  # None: the task's registered horizon
     render_mode: str = "rgb_array"      # lerobot-eval renders videos of the first episodes
+    camera_width: int = 0               # > 0: the endoscope image, for policies trained on `collect --camera` data
+    camera_height: int = 0
     features: dict[str, PolicyFeature] = field(default_factory=dict)
     features_map: dict[str, str] = field(default_factory=lambda: {
-        ACTION: ACTION, "agent_pos": OBS_STATE, "environment_state": OBS_ENV_STATE})
+        ACTION: ACTION, "agent_pos": OBS_STATE, "environment_state": OBS_ENV_STATE,
+        f"pixels/{ENV_CAMERA}": f"{OBS_IMAGES}.{ENV_CAMERA}"})
 
     def __post_init__(self):
         import surrol_data.envs  # noqa: F401  (registers the SurRoL/* ids)
@@ -73,6 +84,9 @@ class SurrolEnv(EnvConfig):
                 "environment_state": PolicyFeature(type=FeatureType.ENV,
                                                    shape=(2 * spaces["desired_goal"].shape[0],)),
             }
+            if self.camera_width > 0:
+                self.features[f"pixels/{ENV_CAMERA}"] = PolicyFeature(
+                    type=FeatureType.VISUAL, shape=(self.camera_height, self.camera_width, 3))
         finally:
             env.close()
 
@@ -89,6 +103,8 @@ class SurrolEnv(EnvConfig):
     @property
     def gym_kwargs(self) -> dict:
         kwargs = {"render_mode": self.render_mode}
+        if self.camera_width > 0:
+            kwargs.update(camera=True, camera_size=(self.camera_width, self.camera_height))
         if self.episode_length is not None:
             kwargs["max_episode_steps"] = self.episode_length
         return kwargs
