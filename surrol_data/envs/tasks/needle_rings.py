@@ -121,10 +121,15 @@ class NeedleRings(NeedleRegrasp):
         objects.set_needle_frame(self.client, self.object_id, centre, rotation)
         pitch1 = self.HOLD_PITCH[0] + roll
         tip1 = self._grasp_tip(centre + rotation @ needle_point(self.HOLD_POINT), pitch1)
-        ws2 = self.WORKSPACES[1]
-        start2 = np.array([ws2[0].mean(), -0.04, 0.735])
         return (ArmStart(tip1, pitch1, self._contact_jaw_angle()),
-                ArmStart(start2, self.HOLD_PITCH[1], physics.JAW_OPEN_RAD))
+                ArmStart(self._psm2_waiting_place(), self.HOLD_PITCH[1], physics.JAW_OPEN_RAD))
+
+    def _psm2_waiting_place(self) -> np.ndarray:
+        """Where PSM2 starts and waits while PSM1 turns the needle: above and behind the hand-off, off the
+        needle's plane on the side it comes in from (see ``plan_oracle``). Its open blades span ~7 mm across
+        that plane; from a place on the plane, the way down to the hand-off swept them across the turning
+        needle's arc, and a touch there (0.5–1.8 N) knocked the needle out of PSM1's hand."""
+        return np.array([self.nominal_centre[0] - self.SIDE_STEP_M, -0.04, 0.735])
 
     def sample_goal(self, rng):
         tip = self.nominal_centre + _rot_x(self.GOAL_AT) @ _UPRIGHT @ TIP
@@ -190,8 +195,7 @@ class NeedleRings(NeedleRegrasp):
                 return tip - 0.01 * approach_direction(pitch)
             return target
 
-        wait2 = {"target": np.array([self.WORKSPACES[1][0].mean(), -0.04, 0.735]), "angle": p2, "jaw": OPEN,
-                 "tol": 1.0, "angle_tol": 10.0}
+        wait2 = {"target": self._psm2_waiting_place(), "angle": p2, "jaw": OPEN, "tol": 1.0, "angle_tol": 10.0}
         steps = []
         # PSM1 brings the needle to its nominal pose, then turns it through the ring in TURN_STEP steps.
         turns = [0.0, *np.arange(self.TURN_STEP, self.HANDOFF_AT + 1e-9, self.TURN_STEP)]
