@@ -141,6 +141,9 @@ def plot_comparison(path: str | Path, rows: Sequence[Mapping], *,
         ax.grid(alpha=0.3)
 
     sources = [str(r["source"]) for r in rows]
+    # Each source's success rate under its name: steps and path are over successful episodes only, so a bar
+    # means little without it.
+    labels = [f"{s}\n{_cell(r.get('success_rate'), _percent)} success" for s, r in zip(sources, rows)]
     x = np.arange(len(sources))
     colors = [plt.get_cmap("tab10")(i % 10) for i in range(len(sources))]
     panels = [("mean_steps_to_success", "steps_to_success", "steps to success (steps)", "steps to success"),
@@ -159,7 +162,7 @@ def plot_comparison(path: str | Path, rows: Sequence[Mapping], *,
         for i, m in enumerate(means):
             if not np.isfinite(m):   # no successful episode: say so instead of drawing a zero bar
                 ax.annotate("no success", (i, 0), ha="center", va="bottom", fontsize=8, rotation=90)
-        ax.set_xticks(x, sources, rotation=20 if len(sources) > 3 else 0, ha="right" if len(sources) > 3 else "center")
+        ax.set_xticks(x, labels, rotation=20 if len(sources) > 3 else 0, ha="right" if len(sources) > 3 else "center")
         ax.set_xlabel("policy / demo source")
         ax.set_ylabel(ylabel)
         ax.set_title(f"({next(letters)}) {name} per source")
