@@ -70,6 +70,11 @@ class GlyphBlockScene:
         centre, rot = self.block_pose()
         return centre, self.grasp_point(), kin.euler_xyz(rot)
 
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        obs, info = super().reset(seed=seed, options=options)
+        self._block_start_z = float(obs["achieved_goal"][2])   # the block's z comes first in both tasks' goals
+        return obs, info
+
     def block_lifted(self) -> bool:
         return self.block_pose()[0][2] > self._block_start_z + self.WELD_LIFT_M
 
@@ -136,11 +141,6 @@ class MatchBoard(GlyphBlockScene, PsmEnv):
         self.place_block_at_random(rng)
         start = np.array([WORKSPACE[0, 0], WORKSPACE[1, 1], WORKSPACE[2, 1]])
         return start, 0.0, physics.JAW_OPEN_RAD
-
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        obs, info = super().reset(seed=seed, options=options)
-        self._block_start_z = float(obs["achieved_goal"][2])
-        return obs, info
 
     def sample_goal(self, rng):
         return self.board.groove_centre(self.glyph)

@@ -76,11 +76,6 @@ class MatchBoardPanel(GlyphBlockScene, PsmEnv):
         start = np.array([WORKSPACE[0, 0], WORKSPACE[1, 1], WORKSPACE[2, 1]])
         return start, 0.0, physics.JAW_OPEN_RAD
 
-    def reset(self, *, seed: int | None = None, options: dict | None = None):
-        obs, info = super().reset(seed=seed, options=options)
-        self._block_start_z = float(obs["achieved_goal"][2])
-        return obs, info
-
     def sample_goal(self, rng):
         seat = self.cabinet.cell_floor_centre(self.target_cell, dr.TRAVEL) + [0.0, 0.0, mb.BLOCK_HEIGHT / 2]
         return np.concatenate([seat, self.cabinet.handle_position(dr.TRAVEL)])
