@@ -62,6 +62,32 @@ def test_gui_play_save_exit_records_a_valid_dataset(tmp_path):
     assert len(reader.trajectory(int(row["episode_index"])).action) == SAVE_AT_STEP
 
 
+def test_keyboard_keys_of_the_window_drive_the_tool(tmp_path):
+    from surrol_data.gui.app import TrainingApp
+    from surrol_data.gui.keys import WindowKeys
+
+    app = TrainingApp(out=tmp_path, offscreen=True, size=(480, 270))
+    app.choose_task("NeedleReach")
+    app.set_session("keyboard", "novice", "k1")
+    send = app.base.messenger.send
+
+    def hand(task):
+        # The events a real key press makes in the window: hold `d` (tool +x) for a while, then Esc.
+        if app.hud.steps == 1 and app.hud.attempt == 1:
+            send(WindowKeys.DOWN_EVENT, ["d"])
+        elif app.hud.steps == 8:
+            send(WindowKeys.UP_EVENT, ["d"])
+            send(WindowKeys.DOWN_EVENT, ["escape"])
+        return task.cont
+
+    app.base.taskMgr.add(hand, "hand")
+    app.exit_after_session = True   # Esc ends the session; the window would stay open for the next one
+    app.play()
+    app.run()
+    assert app.last_error is None and app.last_result.ended_by == "operator"
+    assert app.hud.path_m > 0.002   # the held key moved the tool millimetres (untouched, it stays still)
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(shutil.which("Xvfb") is None, reason="needs Xvfb (Debian package `xvfb`) for an X display")
 def test_gui_on_an_x_display_through_the_cli(tmp_path):
