@@ -1,8 +1,9 @@
 """Every ``surrol-data`` command of the README runs as written — with small sizes (at most 20 collected and 5
 evaluation episodes, training on ``experiment=smoke``, a study on ``table1_quick``), in a scratch folder, each ``bash`` block in README order.
 
-Left out: the install lines (``pip install uv``, the test suite itself) and the SLURM sweep (no cluster
-here; its composed config is still checked with ``--cfg job``).
+Left out: the install lines (``pip install uv``, the test suite itself), the SLURM sweep (no cluster
+here; its composed config is still checked with ``--cfg job``) and ``eval --policy lerobot:DIR`` (it needs a
+``lerobot-train`` run first; ``tests/test_lerobot_train.py`` runs the two in order).
 """
 
 from __future__ import annotations
@@ -44,6 +45,8 @@ def adapt(command: str, home: Path) -> list[str] | None:
     """The README command with small sizes and placeholders filled; None if it cannot run here."""
     args = shlex.split(command.replace("~", str(home)))
     if "hydra/launcher=slurm" in args:
+        return None
+    if any(a.startswith("lerobot:") for a in args):   # needs lerobot-train's output first: tests/test_lerobot_train.py
         return None
     if args[1] == "train" and "--cfg" not in args:
         args.append("experiment=smoke")
