@@ -171,6 +171,9 @@ def test_batched_runs_write_what_single_runs_write(tmp_path, reach_demos):
     assert batched[0][0]["bc_loss"] != b[0]["bc_loss"]
     # a member's checkpoint is a single run's: the single path loads it (and, the run being complete, adds nothing)
     assert _comparable(train(TrainConfig(**{**cfgs[1].__dict__, "resume": True}))) == _comparable(b)
+    # and, as a single run, a batched sweep refuses to start over the runs it wrote unless told to resume
+    with pytest.raises(FileExistsError, match="resume=true"):
+        train_batched(cfgs, overlap=False, n_workers=0, progress=False)
 
 
 def test_batched_resume_takes_the_oldest_epoch_when_a_kill_split_the_members(tmp_path, reach_demos):

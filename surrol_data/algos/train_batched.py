@@ -43,7 +43,7 @@ from surrol_data.algos.ensemble import EnsembleDDPG
 from surrol_data.algos.env_pool import EnvPool
 from surrol_data.algos.replay import EpisodeReplay, rng_from_tensor, rng_state_tensor
 from surrol_data.algos.train import (CHECKPOINT_FORMAT, EVAL_SEED_BASE, TRAIN_SEED_STRIDE, RunLog, TrainConfig,
-                                     _check, _config_json, _write_json, make_env)
+                                     _check, _config_json, _write_json, claim_run_dir, make_env)
 from surrol_data.datasets.trajectory import TrajectoryBuilder
 from surrol_data.evaluation.metrics import summarize, trajectory_proficiency
 
@@ -99,6 +99,8 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
                   progress: bool = True) -> list[list[dict]]:
     """Train (or resume) the runs ``cfgs`` as one ensemble; returns every member's per-epoch rows."""
     _check_members(cfgs)
+    for cfg in cfgs:   # as single runs: an earlier run's folder is refused unless resumed or overwritten
+        claim_run_dir(Path(cfg.run_dir), resume=cfg.resume, overwrite=cfg.overwrite)
     s, first = cfgs[0].schedule, cfgs[0]
     torch.set_num_threads(s.torch_threads)
 
