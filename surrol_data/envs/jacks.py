@@ -87,12 +87,7 @@ def _jack_inertia() -> list[float]:
 
 def spawn_jack(client, spec: dict) -> int:
     """A fresh jack from ``spec``, allowed to sleep once it rests."""
-    body = client.createMultiBody(**spec)
-    # The mass is restated because PyBullet zeroes it when only the inertia of a rigid body is changed.
-    client.changeDynamics(body, -1, lateralFriction=physics.OBJECT_FRICTION, spinningFriction=0.001,
-                          rollingFriction=0.0, mass=JACK_MASS, localInertiaDiagonal=_jack_inertia(),
-                          activationState=pb.ACTIVATION_STATE_ENABLE_SLEEPING)
-    return body
+    return objects.spawn_rigid_object(client, spec, JACK_MASS, _jack_inertia())
 
 
 def place_jack(client, body: int, xy, floor_z: float, yaw: float) -> None:

@@ -126,11 +126,7 @@ def _block_inertia(name: str) -> list[float]:
 
 def spawn_block(client, spec: dict, name: str) -> int:
     """A fresh block body from ``spec``, allowed to sleep once it rests."""
-    body = client.createMultiBody(**spec)
-    client.changeDynamics(body, -1, lateralFriction=physics.OBJECT_FRICTION, spinningFriction=0.001,
-                          rollingFriction=0.0, mass=BLOCK_MASS, localInertiaDiagonal=_block_inertia(name),
-                          activationState=pb.ACTIVATION_STATE_ENABLE_SLEEPING)
-    return body
+    return objects.spawn_rigid_object(client, spec, BLOCK_MASS, _block_inertia(name))
 
 
 def place_block(client, body: int, name: str, xy, surface_z: float, yaw: float) -> None:

@@ -64,6 +64,17 @@ def _box(client, half_extents_m, colour, mass=0.0, position_m=(0, 0, 0), frictio
     return body
 
 
+def spawn_rigid_object(client, spec: dict, mass: float, inertia) -> int:
+    """A fresh free object from ``spec`` (``createMultiBody`` arguments) with the objects' friction, its own mass
+    and inertia diagonal (scaled units), allowed to sleep once it rests (its contacts then cost nothing)."""
+    body = client.createMultiBody(**spec)
+    # The mass is restated because PyBullet zeroes it when only the inertia of a rigid body is changed.
+    client.changeDynamics(body, -1, lateralFriction=physics.OBJECT_FRICTION, spinningFriction=0.001,
+                          rollingFriction=0.0, mass=mass, localInertiaDiagonal=list(inertia),
+                          activationState=pb.ACTIVATION_STATE_ENABLE_SLEEPING)
+    return body
+
+
 def make_table(client, visual: bool = True) -> int:
     return _box(client, TABLE_HALF_EXTENTS, TABLE_COLOUR, position_m=TABLE_CENTRE, visual=visual)
 

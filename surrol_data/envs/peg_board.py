@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 from surrol_data.envs.physics import pb  # physics imports pybullet quietly
 
-from surrol_data.envs import physics
+from surrol_data.envs import objects, physics
 from surrol_data.envs.units import SCALING
 
 _MM = 1e-3
@@ -183,12 +183,7 @@ def _block_inertia() -> list[float]:
 
 def spawn_block(client, spec: dict) -> int:
     """A fresh block body from ``spec``, allowed to sleep once it rests (its contacts then cost nothing)."""
-    body = client.createMultiBody(**spec)
-    # The mass is restated because PyBullet zeroes it when only the inertia of a rigid body is changed.
-    client.changeDynamics(body, -1, lateralFriction=physics.OBJECT_FRICTION, spinningFriction=0.001,
-                          rollingFriction=0.0, mass=BLOCK_MASS, localInertiaDiagonal=_block_inertia(),
-                          activationState=pb.ACTIVATION_STATE_ENABLE_SLEEPING)
-    return body
+    return objects.spawn_rigid_object(client, spec, BLOCK_MASS, _block_inertia())
 
 
 def place_block_on_peg(client, body: int, board: PegBoard, peg_index: int, yaw: float) -> None:

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 from surrol_data.envs.physics import pb  # physics imports pybullet quietly
 
-from surrol_data.envs import physics
+from surrol_data.envs import objects, physics
 from surrol_data.envs.objects import TABLE_TOP_Z
 from surrol_data.envs.units import SCALING
 
@@ -157,15 +157,11 @@ def ring_spec(client, visual: bool = True) -> dict:
 def spawn_ring(client, spec: dict, old_body: int = -1) -> int:
     if old_body >= 0:
         client.removeBody(old_body)
-    body = client.createMultiBody(**spec)
     r1, r2, h = RING_INNER_RADIUS * SCALING, RING_OUTER_RADIUS * SCALING, RING_THICKNESS * SCALING
     # A thick-walled tube (not the compound's bounding box, which would overstate a ring that is mostly hole).
     izz = RING_MASS * (r1 ** 2 + r2 ** 2) / 2
     ixx = RING_MASS * (3 * (r1 ** 2 + r2 ** 2) + h ** 2) / 12
-    client.changeDynamics(body, -1, lateralFriction=physics.OBJECT_FRICTION, spinningFriction=0.001,
-                          rollingFriction=0.0, mass=RING_MASS, localInertiaDiagonal=[ixx, ixx, izz],
-                          activationState=pb.ACTIVATION_STATE_ENABLE_SLEEPING)
-    return body
+    return objects.spawn_rigid_object(client, spec, RING_MASS, [ixx, ixx, izz])
 
 
 def set_ring_pose(client, body: int, centre_m, rotation: np.ndarray) -> None:
