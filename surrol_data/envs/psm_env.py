@@ -19,6 +19,7 @@ from surrol_data.envs import objects, physics
 from surrol_data.envs.adaptive_steps import SubstepPlanner
 from surrol_data.envs.ecm import SceneEndoscope
 from surrol_data.envs.grasp import Grasp
+from surrol_data.envs.physics import pb
 from surrol_data.envs.psm import Psm
 from surrol_data.envs.units import ACTION_POSITION_M, ACTION_YAW_RAD, SCALING, SUCCESS_TOLERANCE_M
 
@@ -28,6 +29,8 @@ WORKSPACE = np.array([[0.50, 0.60], [-0.05, 0.05], [0.675, 0.745]])
 # Commanded tip targets may leave the sampling workspace by this much (low side, high side): the reference's
 # margins (±0.02 xy, +0.08 z) are in its scaled units, i.e. ±4 mm / +16 mm real.
 WORKSPACE_MARGIN = np.array([[0.02, 0.02], [0.02, 0.02], [0.0, 0.08]]) / SCALING
+_TARGET_LOW = WORKSPACE[:, 0] - WORKSPACE_MARGIN[:, 0]
+_TARGET_HIGH = WORKSPACE[:, 1] + WORKSPACE_MARGIN[:, 1]
 # Tool-down tip frame: columns are tip x (wrist-yaw axis), tip y (jaw-opening direction), tip z (down).
 _TOOL_DOWN = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 
@@ -69,6 +72,12 @@ def wrap_angle(a):
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
 
 
+def clip(a: np.ndarray, low, high) -> np.ndarray:
+    """``np.clip`` of a float array (the same rule: max with ``low``, then min with ``high``, NaN kept) without
+    its Python-level dispatch, which costs more than the clipping on the envs' 3- to 10-element arrays."""
+    return np.minimum(np.maximum(a, low), high)
+
+
 class PsmEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 5}
 
@@ -88,6 +97,7 @@ class PsmEnv(gym.Env):
     # (benchmarks/physics_realism.py probes contacts there). Unset, it costs one attribute test per substep.
     substep_hook = None
     _closing: tuple = ()      # grasps whose jaws close during the current step (they may grip at any substep)
+    _features_of = None       # the tip pose whose orientation features are cached in _features
 
     def __init__(self, render_mode: str | None = None, render_size: tuple[int, int] = (480, 360),
                  camera: bool = False, camera_size: tuple[int, int] = (128, 128), camera_renderer: str = "tiny"):
@@ -207,7 +217,7 @@ class PsmEnv(gym.Env):
         return obs, self._info(obs)
 
     def step(self, action):
-        action = np.clip(np.asarray(action, dtype=np.float64).reshape(5), -1.0, 1.0)
+        action = clip(np.asarray(action, dtype=np.float64).reshape(5), -1.0, 1.0)
         self._apply_action(action)
         closing = not self.BLOCK_JAW and action[4] < 0
         self._closing = (self.grasp,) if closing else ()
@@ -251,15 +261,19 @@ class PsmEnv(gym.Env):
         hook = self.substep_hook
         watched = [g for g in closing if not g.attached]
         c = self.client
-        self._substeps.plan_tools(physics.TIME_STEP)
+        cid = c._client
+        step_simulation = pb.stepSimulation
+        planner = self._substeps
+        psms = [grasp.psm for grasp in planner.grasps]
+        planner.plan_tools(physics.TIME_STEP)
         for i in range(steps):
-            for grasp in self._substeps.grasps:
-                grasp.psm.ramp_targets(i)
-            k = self._substeps.refinement(physics.TIME_STEP)
+            for psm in psms:
+                psm.ramp_targets(i)
+            k = planner.refinement(physics.TIME_STEP)
             if k > 1:
                 c.setPhysicsEngineParameter(fixedTimeStep=physics.TIME_STEP / k)
             for _ in range(k):
-                c.stepSimulation()
+                step_simulation(cid)
                 if watched:
                     watched = [g for g in watched if not g.grip_if_between()]
                 if hook is not None:
@@ -273,10 +287,10 @@ class PsmEnv(gym.Env):
     def _apply_action(self, action: np.ndarray) -> None:
         pose = self._tip
         target = pose[:3, 3] + action[:3] * ACTION_POSITION_M
-        target = np.clip(target, WORKSPACE[:, 0] - WORKSPACE_MARGIN[:, 0], WORKSPACE[:, 1] + WORKSPACE_MARGIN[:, 1])
-        features = tip_orientation_features(pose[:3, :3])
+        target = clip(target, _TARGET_LOW, _TARGET_HIGH)
+        features = self._tip_features()
         if self.ROTATION_MODE == "pitch":
-            angle = float(np.clip(features[0] + action[3] * ACTION_PITCH_RAD, -PITCH_LIMIT_RAD, PITCH_LIMIT_RAD))
+            angle = float(min(max(features[0] + action[3] * ACTION_PITCH_RAD, -PITCH_LIMIT_RAD), PITCH_LIMIT_RAD))
         else:
             angle = features[2] + (0.0 if self.FIXED_YAW else action[3] * ACTION_YAW_RAD)
         self.psm.command_tip(kin.pose_from(target, self.tool_rotation(angle)), ramp=True)
@@ -294,9 +308,17 @@ class PsmEnv(gym.Env):
         """Where the controlled angle sits in the observation (orientation roll term in pitch mode, else yaw)."""
         return 3 if self.ROTATION_MODE == "pitch" else 5
 
+    def _tip_features(self) -> np.ndarray:
+        """tip_orientation_features of the current tip pose (the observation and the next action both need them:
+        computed once per pose). Read only."""
+        if self._features_of is not self._tip:
+            self._features = tip_orientation_features(self._tip[:3, :3])
+            self._features_of = self._tip
+        return self._features
+
     def robot_state(self) -> np.ndarray:
         pose = self._tip
-        return np.concatenate([pose[:3, 3], tip_orientation_features(pose[:3, :3]), [self.psm.jaw_angle()]])
+        return np.concatenate([pose[:3, 3], self._tip_features(), [self.psm.jaw_angle()]])
 
     def observation_vector(self) -> np.ndarray:
         """The flat state: the arm's terms, then (object tasks) the object's. The bimanual base overrides it."""
