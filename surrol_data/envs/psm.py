@@ -245,7 +245,7 @@ class Psm:
 
     def tip_pose(self) -> np.ndarray:
         """World pose of the tool tip (4×4, real metres), from the simulated joint positions."""
-        return self.world_T_rcm @ kin.psm_fk(self.joint_positions())
+        return self.world_T_rcm.dot(kin.psm_fk(self.joint_positions()))   # (.dot: see kinematics)
 
     def link_pose_world(self, link: int) -> tuple[np.ndarray, np.ndarray]:
         """(position in real metres, rotation matrix) of a link, as PyBullet simulates it."""
@@ -254,7 +254,7 @@ class Psm:
 
     # ------------------------------------------------------------------ commands
     def ik(self, tip_pose_world: np.ndarray) -> kin.IKResult:
-        return kin.psm_ik(self.rcm_T_world @ tip_pose_world)
+        return kin.psm_ik(self.rcm_T_world.dot(tip_pose_world))
 
     def command_tip(self, tip_pose_world: np.ndarray, ramp: bool = False) -> bool:
         """Set joint targets for a tip pose. Out-of-limit solutions are refused (the arm keeps its target).

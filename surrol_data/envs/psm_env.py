@@ -33,6 +33,7 @@ _TARGET_LOW = WORKSPACE[:, 0] - WORKSPACE_MARGIN[:, 0]
 _TARGET_HIGH = WORKSPACE[:, 1] + WORKSPACE_MARGIN[:, 1]
 # Tool-down tip frame: columns are tip x (wrist-yaw axis), tip y (jaw-opening direction), tip z (down).
 _TOOL_DOWN = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+_TOOL_DOWN_T = _TOOL_DOWN.T
 
 
 def tip_orientation_features(rotation: np.ndarray) -> np.ndarray:
@@ -41,11 +42,11 @@ def tip_orientation_features(rotation: np.ndarray) -> np.ndarray:
     Measuring relative to tool-down keeps the features continuous where plain world Euler angles of a
     downward-pointing frame would flip between ±π.
     """
-    return kin.euler_xyz(rotation @ _TOOL_DOWN.T)
+    return kin.euler_xyz(rotation.dot(_TOOL_DOWN_T))   # (.dot: see kinematics)
 
 
 def tool_down(yaw: float) -> np.ndarray:
-    return kin.rot_z3(yaw) @ _TOOL_DOWN
+    return kin.rot_z3(yaw).dot(_TOOL_DOWN)
 
 
 # Pitch mode: one unit of action tilts the tool 15° (the reference's pitch step), within ±90° of vertical.
