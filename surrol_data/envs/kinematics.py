@@ -107,8 +107,8 @@ def psm_fk(q) -> np.ndarray:
 
 _TIP_ROTATION_T = TOOL_TIP_OFFSET[:3, :3].T
 _TIP_OFFSET_POSITION = TOOL_TIP_OFFSET[:3, 3]
-_PSM_LOWER_TOLERANT = PSM_LOWER - 1e-9
-_PSM_UPPER_TOLERANT = PSM_UPPER + 1e-9
+_PSM_LOWER_TOLERANT = (PSM_LOWER - 1e-9).tolist()
+_PSM_UPPER_TOLERANT = (PSM_UPPER + 1e-9).tolist()
 
 
 @dataclass(frozen=True)
@@ -147,7 +147,8 @@ def psm_ik(tip_pose: np.ndarray) -> IKResult:
     q4 = np.arctan2(m[1, 2], m[0, 2])
     q6 = np.arctan2(m[2, 0], m[2, 1])
     q = np.array([q1, q2, q3, q4, q5, q6])
-    ok = bool(np.all(q >= _PSM_LOWER_TOLERANT) and np.all(q <= _PSM_UPPER_TOLERANT))
+    # (The same comparisons as numpy's on the array; its reductions cost more than the whole test.)
+    ok = all(lo <= v <= hi for v, lo, hi in zip(q.tolist(), _PSM_LOWER_TOLERANT, _PSM_UPPER_TOLERANT))
     return IKResult(q=q, within_limits=ok)
 
 
