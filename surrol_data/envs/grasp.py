@@ -30,6 +30,7 @@ from typing import Callable
 import numpy as np
 
 from surrol_data.envs import physics
+from surrol_data.envs.numeric import vector_norm
 from surrol_data.envs.psm import EEF_LINK, JAW_JOINTS
 from surrol_data.envs.units import SCALING
 
@@ -84,7 +85,7 @@ class Grasp:
         """How far (real metres) the held object has moved in the hand since the weld formed."""
         if self._held_at is None:
             return 0.0
-        return float(np.linalg.norm(self._relative_position() - self._held_at)) / SCALING
+        return float(vector_norm(self._relative_position() - self._held_at)) / SCALING
 
     def grip_if_between(self) -> bool:
         """Called after every physics substep while the jaw closes: grip the moment both blades touch the

@@ -19,6 +19,7 @@ from surrol_data.envs import objects, physics
 from surrol_data.envs.adaptive_steps import SubstepPlanner
 from surrol_data.envs.ecm import SceneEndoscope
 from surrol_data.envs.grasp import Grasp
+from surrol_data.envs.numeric import clip, norm
 from surrol_data.envs.physics import pb
 from surrol_data.envs.psm import Psm
 from surrol_data.envs.units import ACTION_POSITION_M, ACTION_YAW_RAD, SCALING, SUCCESS_TOLERANCE_M
@@ -73,10 +74,6 @@ def wrap_angle(a):
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
 
 
-def clip(a: np.ndarray, low, high) -> np.ndarray:
-    """``np.clip`` of a float array (the same rule: max with ``low``, then min with ``high``, NaN kept) without
-    its Python-level dispatch, which costs more than the clipping on the envs' 3- to 10-element arrays."""
-    return np.minimum(np.maximum(a, low), high)
 
 
 class PsmEnv(gym.Env):
@@ -175,7 +172,7 @@ class PsmEnv(gym.Env):
         return True
 
     def is_success(self, achieved_goal, desired_goal) -> np.ndarray:
-        d = np.linalg.norm(np.asarray(achieved_goal) - np.asarray(desired_goal), axis=-1)
+        d = norm(np.asarray(achieved_goal) - np.asarray(desired_goal))
         return d < SUCCESS_TOLERANCE_M
 
     # ------------------------------------------------------------------ Gymnasium API

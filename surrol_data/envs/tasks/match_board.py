@@ -21,6 +21,7 @@ import numpy as np
 from surrol_data.envs import kinematics as kin
 from surrol_data.envs import match_board as mb
 from surrol_data.envs import physics
+from surrol_data.envs.numeric import norm
 from surrol_data.envs.psm_env import WORKSPACE, PsmEnv, wrap_angle
 
 OPEN, CLOSE = 0.5, -0.5
@@ -153,7 +154,7 @@ class MatchBoard(GlyphBlockScene, PsmEnv):
 
     def is_success(self, achieved_goal, desired_goal) -> np.ndarray:
         e = np.asarray(achieved_goal, dtype=np.float64) - np.asarray(desired_goal, dtype=np.float64)
-        return (np.linalg.norm(e[..., :2], axis=-1) < self.XY_TOLERANCE_M) & (np.abs(e[..., 2]) < self.HEIGHT_TOLERANCE_M)
+        return (norm(e[..., :2]) < self.XY_TOLERANCE_M) & (np.abs(e[..., 2]) < self.HEIGHT_TOLERANCE_M)
 
     def object_state(self):
         return self.block_object_state()
