@@ -148,8 +148,7 @@ class BimanualEnv(PsmEnv):
             grasp.update(closing=arm_action[4] < 0)
         obs = self._get_obs()
         info = self._info(obs)
-        reward = float(self.compute_reward(obs["achieved_goal"], obs["desired_goal"]))
-        return obs, reward, False, False, info
+        return obs, self._step_reward(obs, info), False, False, info
 
     # ------------------------------------------------------------------ internals
     def simulate(self, steps: int) -> None:

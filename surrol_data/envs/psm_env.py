@@ -225,8 +225,14 @@ class PsmEnv(gym.Env):
             self.grasp.update(closing=closing)
         obs = self._get_obs()
         info = self._info(obs)
-        reward = float(self.compute_reward(obs["achieved_goal"], obs["desired_goal"]))
-        return obs, reward, False, False, info
+        return obs, self._step_reward(obs, info), False, False, info
+
+    def _step_reward(self, obs: dict, info: dict) -> float:
+        """The step's reward: with the default sparse reward, is_success − 1 from the info's success (the same
+        test on the same goals, not made twice)."""
+        if type(self).compute_reward is PsmEnv.compute_reward:
+            return info["is_success"] - 1.0
+        return float(self.compute_reward(obs["achieved_goal"], obs["desired_goal"]))
 
     def render(self):
         if self.render_mode != "rgb_array":
@@ -265,8 +271,9 @@ class PsmEnv(gym.Env):
         psms = [grasp.psm for grasp in planner.grasps]
         planner.plan_tools(physics.TIME_STEP)
         for i in range(steps):
-            for psm in psms:
-                psm.ramp_targets(i)
+            if i < physics.RAMP_STEPS:   # (a ramp ends at its last step: later calls would do nothing)
+                for psm in psms:
+                    psm.ramp_targets(i)
             k = planner.refinement(physics.TIME_STEP)
             if k > 1:
                 c.setPhysicsEngineParameter(fixedTimeStep=physics.TIME_STEP / k)
