@@ -95,7 +95,7 @@ class PsmEnv(gym.Env):
     # (benchmarks/physics_realism.py probes contacts there). Unset, it costs one attribute test per substep.
     substep_hook = None
     _closing: tuple = ()      # grasps whose jaws close during the current step (they may grip at any substep)
-    _features_of = None       # the tip pose whose orientation features are cached in _features
+    _features_memo: dict | None = None   # id(tip pose) → (pose, its orientation features), see _orientation_features
 
     def __init__(self, render_mode: str | None = None, render_size: tuple[int, int] = (480, 360),
                  camera: bool = False, camera_size: tuple[int, int] = (128, 128), camera_renderer: str = "tiny"):
@@ -313,13 +313,23 @@ class PsmEnv(gym.Env):
         """Where the controlled angle sits in the observation (orientation roll term in pitch mode, else yaw)."""
         return 3 if self.ROTATION_MODE == "pitch" else 5
 
+    def _orientation_features(self, pose: np.ndarray) -> np.ndarray:
+        """tip_orientation_features of a tip pose the env keeps (the observation and the next action both need
+        them: computed once per pose object; the env's poses are fresh arrays, never changed). Read only."""
+        memo = self._features_memo
+        if memo is None:
+            memo = self._features_memo = {}
+        hit = memo.get(id(pose))
+        if hit is not None and hit[0] is pose:
+            return hit[1]
+        if len(memo) >= 4:
+            memo.clear()
+        features = tip_orientation_features(pose[:3, :3])
+        memo[id(pose)] = (pose, features)
+        return features
+
     def _tip_features(self) -> np.ndarray:
-        """tip_orientation_features of the current tip pose (the observation and the next action both need them:
-        computed once per pose). Read only."""
-        if self._features_of is not self._tip:
-            self._features = tip_orientation_features(self._tip[:3, :3])
-            self._features_of = self._tip
-        return self._features
+        return self._orientation_features(self._tip)
 
     def robot_state(self) -> np.ndarray:
         pose = self._tip

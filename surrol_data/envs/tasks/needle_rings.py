@@ -174,7 +174,7 @@ class NeedleRings(NeedleRegrasp):
     def plan_oracle(self):
         c = self.nominal_centre
         start_turn = self.needle_turn()
-        p1_start = self._rotation_angle(0, self.tip_pose(0)[:3, :3])
+        p1_start = self._rotation_angle(0, self.tip_pose(0))
         p2 = self.HOLD_PITCH[1]
 
         def turned(arm: int, turn: float):
