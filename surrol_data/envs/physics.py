@@ -121,11 +121,20 @@ def _disconnect_at_exit(ref: weakref.ref) -> None:
             client.disconnect()
 
 
-def make_client(gui: bool = False) -> Client:
-    """A fresh PyBullet world with this project's physics settings (no module-level client anywhere)."""
+def make_client(gui: bool = False, renderer: bool = True) -> Client:
+    """A fresh PyBullet world with this project's physics settings (no module-level client anywhere).
+
+    ``renderer=False``, for a world that is never rendered (no camera, no render mode): PyBullet's built-in
+    TinyRenderer is unloaded. Otherwise every body created builds render meshes (of its collision shapes when it
+    has no visual ones), more than half the cost of an env's reset; the physics never reads them."""
     with _stdout_silenced(not gui):
         client = Client(connection_mode=pb.GUI if gui else pb.DIRECT)
     atexit.register(_disconnect_at_exit, weakref.ref(client))
+    if not renderer and not gui:
+        # Loading an already loaded plugin returns its id; unloaded, the server has no renderer to feed.
+        plugin = client.loadPlugin("tinyRendererPlugin")
+        if plugin >= 0:
+            client.unloadPlugin(plugin)
     configure(client)
     if gui:
         client.configureDebugVisualizer(pb.COV_ENABLE_GUI, 0)

@@ -105,7 +105,7 @@ class PsmEnv(gym.Env):
         self.render_size = render_size
         # Visual shapes cost most of a rebuild and matter only to a renderer: build them only when one is used.
         self.visual = render_mode is not None or bool(camera)
-        self.client = physics.make_client(gui=render_mode == "human")
+        self.client = physics.make_client(gui=render_mode == "human", renderer=self.visual)
         self._build_world()
         # camera=True: a still, non-colliding ECM over the scene whose endoscope image joins the observation.
         # camera_renderer: "tiny" (PyBullet's TinyRenderer) or "panda3d" (spotlight, shadows, anti-aliasing).
