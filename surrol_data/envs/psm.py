@@ -39,6 +39,10 @@ _ROLL_LOWER, _ROLL_UPPER = float(kin.PSM_LOWER[3]), float(kin.PSM_UPPER[3])
 # blade-end speeds are small, and a 30° turn needs the whole period at the wrist's speed limit).
 _RAMPED_JOINTS = (0, 1, 2)
 _WRIST_JOINTS = (3, 4, 5)
+_RAMP_ZEROS = [0.0] * len(_RAMPED_JOINTS)
+_RAMP_FORCES = [physics.PSM_MAX_FORCE[k] for k in _RAMPED_JOINTS]
+_RAMP_POSITION_GAINS = [physics.PSM_POSITION_GAIN] * len(_RAMPED_JOINTS)
+_RAMP_VELOCITY_GAINS = [physics.PSM_VELOCITY_GAIN] * len(_RAMPED_JOINTS)
 # Levers (real metres per scaled unit of joint motion) from joints 2–7 to the blade ends: insertion (scaled),
 # tool roll (blades within ~2 mm of the shaft axis), wrist pitch (wrist + blade), wrist yaw and the jaws (blade).
 _BLADE_LEVERS = (1.0 / SCALING, 0.002, kin.WRIST_LENGTH + kin.TIP_LENGTH, kin.TIP_LENGTH, kin.TIP_LENGTH,
@@ -171,6 +175,7 @@ class Psm:
 
     def _create_body(self) -> int:
         c = self.client
+        self._ramp_limits_sent = False   # a fresh body's motors have no speed limits yet
         body = c.createMultiBody(**self._spec)
         n = len(self._spec["linkMasses"])
         for j in range(n):
@@ -298,9 +303,21 @@ class Psm:
             self._ramp_done = True
             # (The wrist's motors got their targets with the command, at the same time step: only the ramped
             # joints change.)
-            self._apply_arm_targets(self._q_target, _RAMPED_JOINTS)
+            self._apply_ramped_targets(self._q_target.tolist()[:3])
         else:
-            self._apply_arm_targets([a + d * f for a, d in zip(self._ramp_start, self._ramp_move)], _RAMPED_JOINTS)
+            self._apply_ramped_targets([a + d * f for a, d in zip(self._ramp_start, self._ramp_move)])
+
+    def _apply_ramped_targets(self, q: list) -> None:
+        """Set the motors of the ramped joints (0–2) to ``q``: one PyBullet command for the three once their
+        speed limits are set (the array form cannot send them, and the motors keep the last ones sent)."""
+        if not self._ramp_limits_sent:
+            self._apply_arm_targets(q, _RAMPED_JOINTS)
+            return
+        motor = self._q_motor
+        motor[0], motor[1], motor[2] = float(q[0]), float(q[1]), float(q[2])
+        pb.setJointMotorControlArray(self.body, _RAMPED_JOINTS, _POSITION_CONTROL,
+                                     [motor[0], motor[1], motor[2] * SCALING], _RAMP_ZEROS, _RAMP_FORCES,
+                                     _RAMP_POSITION_GAINS, _RAMP_VELOCITY_GAINS, self._cid)
 
     def command_jaw(self, angle: float) -> None:
         angle = float(min(max(angle, kin.JAW_LIMITS[0]), kin.JAW_LIMITS[1]))
@@ -320,6 +337,8 @@ class Psm:
         motor = self._q_motor
         for k in joints:
             motor[k] = float(q[k])
+        if joints[:3] == _RAMPED_JOINTS:
+            self._ramp_limits_sent = True
         for k in joints:
             # Positional arguments: PyBullet's keyword parsing costs more than the call itself.
             pb.setJointMotorControl2(self.body, ARM_JOINTS[k], _POSITION_CONTROL,
