@@ -154,9 +154,13 @@ def place_block(client, body: int, name: str, xy, surface_z: float, yaw: float) 
 
 def block_pose(client, body: int, name: str) -> tuple[np.ndarray, np.ndarray]:
     """(glyph centre at mid-height, real metres; rotation matrix) of block ``name``."""
-    pos, quat = client.getBasePositionAndOrientation(body)
-    rot = np.asarray(client.getMatrixFromQuaternion(quat)).reshape(3, 3)
-    return np.asarray(pos) / SCALING - rot @ _centroid_3d(name), rot
+    return block_pose_from(*client.getBasePositionAndOrientation(body), name)
+
+
+def block_pose_from(position, quaternion, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`block_pose` from the block body's base pose as PyBullet reports it."""
+    rot = np.asarray(pb.getMatrixFromQuaternion(quaternion)).reshape(3, 3)
+    return np.asarray(position) / SCALING - rot @ _centroid_3d(name), rot
 
 
 def yaw_of(rotation: np.ndarray) -> float:
