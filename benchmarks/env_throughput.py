@@ -1,7 +1,7 @@
 """Env steps per second, one process, camera off and on: reset excluded and included, with oracle success.
 
 Usage: ``uv run python benchmarks/env_throughput.py [--episodes 20] [--repeats 3] [--tasks NeedlePick ...]
-[--camera off on] [--clock wall|cpu]``
+[--camera off on] [--clock wall|cpu] [--json FILE]``
 
 Each task runs ``episodes`` seeded oracle episodes per repeat; the table gives the median over repeats.
 The oracle's own compute is excluded from the step timing (as in the reference measurement), the gym
@@ -14,8 +14,10 @@ paper's new tasks).
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
 import time
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -73,6 +75,7 @@ def main() -> None:
     parser.add_argument("--clock", choices=["wall", "cpu"], default="wall",
                         help="wall: elapsed time; cpu: this process's CPU time (steadier on a machine shared with "
                              "other jobs, where wall time also counts the waits for a core)")
+    parser.add_argument("--json", type=Path, help="also write the medians to this file ({task: {camera: {...}}})")
     args = parser.parse_args()
     clock = time.perf_counter if args.clock == "wall" else time.process_time
 
@@ -83,16 +86,20 @@ def main() -> None:
     for col in ("task", "camera", "steps/s excl. reset", "steps/s incl. reset", "step ms", "reset ms",
                 "oracle final success", "reference steps/s", "speed-up"):
         table.add_column(col, justify="left" if col in ("task", "camera") else "right")
+    medians: dict = {}
     for task in args.tasks:
         for camera in args.camera:
             episodes = args.camera_episodes if camera == "on" else args.episodes
             runs = [measure(task, episodes, camera == "on", clock) for _ in range(args.repeats)]
             med = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
+            medians.setdefault(task, {})[camera] = med
             ref = REFERENCE_STEPS_PER_S.get(task)
             table.add_row(task, camera, f"{med['excl']:.0f}", f"{med['incl']:.0f}", f"{med['step_ms']:.3f}",
                           f"{med['reset_ms']:.2f}", f"{med['success']:.2f}", f"{ref:.0f}" if ref else "—",
                           f"{med['excl'] / ref:.1f}×" if ref else "—")
     Console(width=170).print(table)
+    if args.json:
+        args.json.write_text(json.dumps(medians, indent=1))
 
 
 if __name__ == "__main__":
