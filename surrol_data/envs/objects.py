@@ -6,7 +6,6 @@ client explicitly and returns the PyBullet body id.
 
 from __future__ import annotations
 
-import struct
 from dataclasses import dataclass
 
 import numpy as np
@@ -196,38 +195,8 @@ def set_needle_frame(client, body: int, position_m, rotation: np.ndarray) -> Non
 def needle_pose(client, body: int) -> tuple[np.ndarray, np.ndarray]:
     """(needle-frame origin in real metres, rotation matrix)."""
     com, quat = client.getBasePositionAndOrientation(body)
-    return _pose_memo(_needle_frame, com, quat)
-
-
-def _needle_frame(com, quat) -> tuple[np.ndarray, np.ndarray]:
-    rot = np.asarray(pb.getMatrixFromQuaternion(quat)).reshape(3, 3)
+    rot = np.asarray(client.getMatrixFromQuaternion(quat)).reshape(3, 3)
     return np.asarray(com) / SCALING - rot @ NEEDLE_COM, rot
-
-
-def base_pose(client, body: int) -> tuple[np.ndarray, np.ndarray]:
-    """(base position in real metres, rotation matrix) of a body."""
-    position, quat = client.getBasePositionAndOrientation(body)
-    return _pose_memo(_base_frame, position, quat)
-
-
-def _base_frame(position, quat) -> tuple[np.ndarray, np.ndarray]:
-    return np.asarray(position) / SCALING, np.asarray(pb.getMatrixFromQuaternion(quat)).reshape(3, 3)
-
-
-_POSE_MEMO: dict = {}
-
-
-def _pose_memo(frame, position, quat) -> tuple[np.ndarray, np.ndarray]:
-    """``frame(position, quat)``, computed once per exact reported pose: an object's pose is asked for several
-    times a step (observation, achieved goal, grasp lift test) and PyBullet's answer is the same until the
-    physics steps. Keyed by the pose's bits (so −0.0 is not 0.0); callers get copies."""
-    key = (frame, struct.pack("7d", *position, *quat))
-    hit = _POSE_MEMO.get(key)
-    if hit is None:
-        if len(_POSE_MEMO) >= 64:
-            _POSE_MEMO.clear()
-        hit = _POSE_MEMO[key] = frame(position, quat)
-    return hit[0].copy(), hit[1].copy()
 
 
 def needle_rest_height() -> float:

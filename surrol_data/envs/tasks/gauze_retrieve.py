@@ -51,7 +51,9 @@ class GauzeRetrieve(PsmEnv):
         return self.achieved_goal()[2] > self.object_start_z + self.WELD_LIFT_M
 
     def gauze_pose(self) -> tuple[np.ndarray, np.ndarray]:
-        return objects.base_pose(self.client, self.object_id)
+        pos, quat = self.client.getBasePositionAndOrientation(self.object_id)
+        rot = np.asarray(self.client.getMatrixFromQuaternion(quat)).reshape(3, 3)
+        return np.asarray(pos) / SCALING, rot
 
     def object_state(self):
         pos, rot = self.gauze_pose()
