@@ -95,7 +95,7 @@ class SubstepPlanner:
         c = self.client
         lo, hi = [math.inf] * 3, [-math.inf] * 3
         for link in links:
-            a, b = c.getAABB(body, link)
+            a, b = pb.getAABB(body, link, self._cid)
             lo = [min(x, y) for x, y in zip(lo, a)]
             hi = [max(x, y) for x, y in zip(hi, b)]
         lo = [x - reach for x in lo]

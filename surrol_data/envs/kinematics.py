@@ -153,7 +153,7 @@ def psm_ik(tip_pose: np.ndarray) -> IKResult:
 
 
 def pose_from(position, rotation) -> np.ndarray:
-    t = np.eye(4)
+    t = _EYE4.copy()
     t[:3, :3] = rotation
     t[:3, 3] = position
     return t
