@@ -123,14 +123,22 @@ def test_yanking_a_held_needle_past_the_weld_force_drops_it_and_counts_the_drop(
         if u.grasp.welded:
             break
     assert u.grasp.welded and info["drops"] == 0
-    # Something holds the needle where it is (a clamp fixed to the world) while the tool pulls up at full speed.
+    # Something pulls the needle out of the hand harder than the weld holds (the force-limited arm itself cannot:
+    # it stalls first), for as long as it is held.
     c = u.client
-    pos, quat = c.getBasePositionAndOrientation(u.object_id)
-    c.createConstraint(u.object_id, -1, -1, -1, c.JOINT_FIXED, [0, 0, 0], [0, 0, 0], pos, childFrameOrientation=quat)
+    pull = [0.0, 0.0, 2.0 * physics.GRASP_MAX_FORCE]
+
+    def pull_while_held(env):
+        if env.grasp.attached:
+            pos = c.getBasePositionAndOrientation(env.object_id)[0]
+            c.applyExternalForce(env.object_id, -1, pull, pos, c.WORLD_FRAME)
+
+    u.substep_hook = pull_while_held
     for _ in range(5):
-        obs, _, _, _, info = e.step(np.array([0.0, 0.0, 1.0, 0.0, -1.0], np.float32))
+        obs, _, _, _, info = e.step(np.array([0.0, 0.0, 0.0, 0.0, -1.0], np.float32))
         if not info["grasped"]:
             break
+    u.substep_hook = None
     assert not info["grasped"]
     assert info["drops"] == 1
 

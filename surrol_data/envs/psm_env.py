@@ -24,6 +24,10 @@ from surrol_data.envs.units import ACTION_POSITION_M, ACTION_YAW_RAD, SCALING, S
 
 # PSM1's remote centre of motion (real metres) and the tip workspace the tasks sample from.
 PSM1_RCM = np.array([0.507, 0.0736, 0.8524])
+# The RCM frame's yaw about the vertical: the reference's base placement (PSM1 −110°, PSM2 −70°), so that joint
+# values match the dVRK's for the same tip pose. Commands are Cartesian, so the tasks do not see it.
+PSM1_BASE_YAW_RAD = float(np.deg2rad(-110.0))
+PSM2_BASE_YAW_RAD = float(np.deg2rad(-70.0))
 WORKSPACE = np.array([[0.50, 0.60], [-0.05, 0.05], [0.675, 0.745]])
 # Commanded tip targets may leave the sampling workspace by this much (low side, high side): the reference's
 # margins (±0.02 xy, +0.08 z) are in its scaled units, i.e. ±4 mm / +16 mm real.
@@ -121,7 +125,7 @@ class PsmEnv(gym.Env):
 
     def _build_world(self) -> None:
         objects.make_table(self.client, visual=self.visual)
-        self.psm = Psm(self.client, PSM1_RCM, visual=self.visual)
+        self.psm = Psm(self.client, PSM1_RCM, PSM1_BASE_YAW_RAD, visual=self.visual)
         self.object_id = -1
         self.build_scene()
         self.goal_marker = objects.make_goal_marker(self.client, visual=self.visual)
@@ -252,20 +256,35 @@ class PsmEnv(gym.Env):
         watched = [g for g in closing if not g.attached]
         c = self.client
         self._substeps.plan_tools(physics.TIME_STEP)
+        arms = [g.psm for g in self._substeps.grasps]
+        for psm in arms:
+            psm.plan_gravity_compensation()
+        k_now = 1
         for i in range(steps):
-            for grasp in self._substeps.grasps:
-                grasp.psm.ramp_targets(i)
+            for psm in arms:
+                psm.ramp_targets(i)
             k = self._substeps.refinement(physics.TIME_STEP)
-            if k > 1:
-                c.setPhysicsEngineParameter(fixedTimeStep=physics.TIME_STEP / k)
+            if k != k_now:
+                k_now = k
+                self._set_time_step(physics.TIME_STEP / k)
             for _ in range(k):
+                for psm in arms:
+                    psm.compensate_gravity()
                 c.stepSimulation()
                 if watched:
                     watched = [g for g in watched if not g.grip_if_between()]
                 if hook is not None:
                     hook(self)
-            if k > 1:
-                c.setPhysicsEngineParameter(fixedTimeStep=physics.TIME_STEP)
+        if k_now != 1:
+            self._set_time_step(physics.TIME_STEP)
+
+    def _set_time_step(self, dt: float) -> None:
+        """Change the physics step and re-issue the motor commands: PyBullet turns a motor's force limit into an
+        impulse limit with the step current when the command is given, so under a k-times finer step the old
+        commands pushed k times harder than their limit (a tool pressed a block 5 mm into the board)."""
+        self.client.setPhysicsEngineParameter(fixedTimeStep=dt)
+        for grasp in self._substeps.grasps:
+            grasp.psm.reapply_motors()
 
     def tip_pose(self) -> np.ndarray:
         return self._tip
