@@ -175,6 +175,55 @@ def test_actions_are_tracked_within_10_percent_in_free_space(needle_pick, action
         assert np.linalg.norm(moved - want) <= 0.1 * np.linalg.norm(want)
 
 
+def test_joint_motors_never_push_harder_than_their_limit_even_in_refined_steps(needle_pick):
+    """A closed jaw driven down onto the pad at full speed: the adaptive sub-steps refine the step near the pad,
+    and the motors' force limits must hold in those finer steps too (PyBullet converts a limit into an impulse
+    with the step current when the command is given)."""
+    e, u = needle_pick, needle_pick.unwrapped
+    e.reset(seed=3)
+    limits = np.array(physics.PSM_MAX_FORCE)
+    worst = []
+
+    def record(env):
+        applied = np.array([s[3] for s in env.client.getJointStates(env.psm.body, range(6))])
+        worst.append(float(np.max(np.abs(applied) / limits)))
+
+    _drive_to(e, u.needle_waypoint(1) + [0.0, 0.0, 0.01], jaw=-1.0)
+    u.substep_hook = record
+    refined = u._substeps.refined_steps
+    for _ in range(4):
+        e.step(np.array([0.0, 0.0, -1.0, 0.0, -1.0], np.float32))
+    u.substep_hook = None
+    assert u._substeps.refined_steps > refined      # the press was refined
+    assert max(worst) <= 1.0 + 1e-6
+
+
+def test_a_block_poked_by_a_closed_jaw_is_not_pressed_into_the_board():
+    r = physics_realism.run_poke_swipe("PegTransfer", "poke", episodes=2)
+    assert r.overlap["object-static"] <= 1e-3 and r.left_inside == 0
+
+
+def test_psm_bases_are_placed_as_in_the_reference():
+    """The reference puts PSM1's base at (0.05, 0.24, 0.8524) yawed −110° and PSM2's at (0.05, −0.24, 0.8524) yawed
+    −70°, each RCM 0.4864 m along its base's y axis: our RCM frames must be those points with those yaws."""
+    from surrol_data.envs import kinematics as kin
+    from surrol_data.envs.bimanual_env import PSM2_RCM
+    from surrol_data.envs.psm_env import PSM1_BASE_YAW_RAD, PSM1_RCM, PSM2_BASE_YAW_RAD
+
+    for base, yaw_deg, rcm, yaw in (((0.05, 0.24, 0.8524), -110.0, PSM1_RCM, PSM1_BASE_YAW_RAD),
+                                    ((0.05, -0.24, 0.8524), -70.0, PSM2_RCM, PSM2_BASE_YAW_RAD)):
+        rot = kin.rot_z3(np.deg2rad(yaw_deg))
+        assert np.allclose(np.asarray(base) + rot @ [0.0, 0.4864, 0.0], rcm, atol=1e-3)
+        assert yaw == pytest.approx(np.deg2rad(yaw_deg))
+    e = gym.make("SurRoL/BiPegTransfer-v0")
+    e.reset(seed=0)
+    for psm, yaw_deg in zip(e.unwrapped.psms, (-110.0, -70.0)):
+        assert np.allclose(psm.world_T_rcm[:3, :3], kin.rot_z3(np.deg2rad(yaw_deg)))
+        # Joint values put the tip where the env says it is, through the yawed RCM frame.
+        assert np.allclose((psm.world_T_rcm @ kin.psm_fk(psm.joint_positions()))[:3, 3], psm.tip_pose()[:3, 3])
+    e.close()
+
+
 # ---------------------------------------------------------------------- campaigns (the benchmark's, shorter)
 # Known open (benchmarks/physics_realism.py, 30 episodes): under bang-bang input a tool can jam a block on its peg,
 # a peg reaching > 1 mm into the block's wall, in 4 of 30 BiPegTransfer episodes.
