@@ -48,14 +48,16 @@ SETTLE_STEPS = 4                  # physics steps after a reset before the first
 PSM_POSITION_GAIN = 0.4
 PSM_VELOCITY_GAIN = 1.0
 # Force limits (N·m / N, scaled scene), as the dVRK's current limits: the most a tool pushes with, so it stalls on
-# a rigid obstacle. Measured on PegTransfer pokes (a closed jaw driven down onto a block wall, 5 episodes) and
-# free-space tracking of the unit box: at (60, 60, 60, 10, 10, 10) the block sank 7.7 mm into the board; at
-# (1, 1, 1) 1.1 mm; at (1, 1, 0.5) 0.6 mm, tracking 2.7 %; at (0.5, 0.5, 0.5) 0.3 mm, but then the tool could not
-# drag the MatchBoardPanel drawer (0 of 3 episodes; at 1.0 it drags it against drawer.FRICTION_N with 0.6 mm of
-# slip in the hand). The wrist's 0.1 pushes ~2 N at the blade ends, ~70× a blade's weight; the jaws squeeze with
-# JAW_MAX_FORCE. These limits only work with light, gravity-compensated links (below): at 3× the link mass
-# below, forces (1, 1, 1) tracked a unit action with 19 % error.
-PSM_MAX_FORCE = (1.0, 1.0, 0.5, 0.1, 0.1, 0.1)
+# a rigid obstacle. Measured on PegTransfer pokes (a closed jaw driven down onto a block wall, 5 episodes),
+# free-space tracking of the unit box, and the oracles: at (60, 60, 60, 10, 10, 10) the block sank 7.7 mm into the
+# board; at (0.5, 0.5, 0.5) 0.3 mm, but the tool could not drag the MatchBoardPanel drawer (0 of 3); at (1, 1, 0.5)
+# 0.6 mm, but BiPegTransfer's oracle, carrying the block 3 mm over the peg tops, caught it on a peg in 9 of 100
+# episodes (91 %; at (1.5, 1.5, 0.75) it still failed 3). At (2, 2, 1) BiPegTransfer's oracle is back to
+# 99 of 100 and the poked block sinks 2.0 mm (the needle under a poke or swipe 1.3–1.5 mm), tracking 2.7 %. The
+# wrist's 0.1 pushes ~2 N at the blade ends, ~70× a blade's weight; the jaws squeeze with JAW_MAX_FORCE. These
+# limits only work with light, gravity-compensated links (below): at 3× the link mass below, forces (1, 1, 1)
+# tracked a unit action with 19 % error.
+PSM_MAX_FORCE = (2.0, 2.0, 1.0, 0.1, 0.1, 0.1)
 # Joint speed limits. A full diagonal action (1, ±1, ±1) asks for 17.3 mm of tip motion per 0.2 s step; with
 # the tip ~0.14 m below the RCM that needs ~0.6 rad/s of outer yaw/pitch and ~0.09 m/s of insertion, and the PD
 # must get there within the step. At (0.35, 0.35, 0.07) a (1, −1, 1) action moved 10–14 mm (41 % tracking
