@@ -205,25 +205,31 @@ def test_a_block_poked_by_a_closed_jaw_stays_out_of_the_board():
     assert r.overlap["object-static"] <= 2.5e-3 and r.left_inside == 0
 
 
-def test_psm_bases_are_placed_as_in_the_reference():
+def test_reference_base_placement_is_consistent_and_keeps_commands_cartesian():
     """The reference puts PSM1's base at (0.05, 0.24, 0.8524) yawed −110° and PSM2's at (0.05, −0.24, 0.8524) yawed
-    −70°, each RCM 0.4864 m along its base's y axis: our RCM frames must be those points with those yaws."""
+    −70°, each RCM 0.4864 m along its base's y axis: the RCM points are ours, and an arm built with that yaw puts its
+    tip where it is commanded (the envs use the yaw only with ``psm_env.USE_REFERENCE_BASE_YAW``)."""
     from surrol_data.envs import kinematics as kin
     from surrol_data.envs.bimanual_env import PSM2_RCM
-    from surrol_data.envs.psm_env import PSM1_BASE_YAW_RAD, PSM1_RCM, PSM2_BASE_YAW_RAD
+    from surrol_data.envs.psm import Psm
+    from surrol_data.envs.psm_env import (PSM1_BASE_YAW_RAD, PSM1_RCM, REFERENCE_PSM1_BASE_YAW_RAD,
+                                          REFERENCE_PSM2_BASE_YAW_RAD, USE_REFERENCE_BASE_YAW, tool_down)
 
-    for base, yaw_deg, rcm, yaw in (((0.05, 0.24, 0.8524), -110.0, PSM1_RCM, PSM1_BASE_YAW_RAD),
-                                    ((0.05, -0.24, 0.8524), -70.0, PSM2_RCM, PSM2_BASE_YAW_RAD)):
+    for base, yaw_deg, rcm, yaw in (((0.05, 0.24, 0.8524), -110.0, PSM1_RCM, REFERENCE_PSM1_BASE_YAW_RAD),
+                                    ((0.05, -0.24, 0.8524), -70.0, PSM2_RCM, REFERENCE_PSM2_BASE_YAW_RAD)):
         rot = kin.rot_z3(np.deg2rad(yaw_deg))
         assert np.allclose(np.asarray(base) + rot @ [0.0, 0.4864, 0.0], rcm, atol=1e-3)
         assert yaw == pytest.approx(np.deg2rad(yaw_deg))
-    e = gym.make("SurRoL/BiPegTransfer-v0")
-    e.reset(seed=0)
-    for psm, yaw_deg in zip(e.unwrapped.psms, (-110.0, -70.0)):
-        assert np.allclose(psm.world_T_rcm[:3, :3], kin.rot_z3(np.deg2rad(yaw_deg)))
-        # Joint values put the tip where the env says it is, through the yawed RCM frame.
-        assert np.allclose((psm.world_T_rcm @ kin.psm_fk(psm.joint_positions()))[:3, 3], psm.tip_pose()[:3, 3])
-    e.close()
+    assert PSM1_BASE_YAW_RAD == (REFERENCE_PSM1_BASE_YAW_RAD if USE_REFERENCE_BASE_YAW else 0.0)
+    client = physics.make_client()
+    psm = Psm(client, PSM1_RCM, REFERENCE_PSM1_BASE_YAW_RAD, visual=False)
+    target = kin.pose_from(np.array([0.55, 0.01, 0.70]), tool_down(0.3))
+    sol = psm.ik(target)
+    assert sol.within_limits
+    psm.reset_joints(sol.q, 0.0)
+    assert np.allclose(psm.tip_pose(), target, atol=1e-9)
+    assert abs(np.rad2deg(sol.q[3])) > 60.0      # the yawed base turns the tool roll (the dVRK's joint values)
+    client.disconnect()
 
 
 # ---------------------------------------------------------------------- campaigns (the benchmark's, shorter)
