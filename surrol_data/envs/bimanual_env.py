@@ -33,7 +33,8 @@ from surrol_data.envs.ecm import SceneEndoscope
 from surrol_data.envs.grasp import Grasp
 from surrol_data.envs.numeric import clip
 from surrol_data.envs.psm import Psm
-from surrol_data.envs.psm_env import (ACTION_PITCH_RAD, PITCH_LIMIT_RAD, PSM1_RCM, ROTATION_MODES,  # noqa: F401
+from surrol_data.envs.psm_env import (ACTION_PITCH_RAD, PITCH_LIMIT_RAD, PSM1_BASE_YAW_RAD, PSM1_RCM,  # noqa: F401
+                                      PSM2_BASE_YAW_RAD, ROTATION_MODES,  # noqa: F401
                                       WORKSPACE_MARGIN, PsmEnv, approach_direction, tilted_tool,
                                       tip_orientation_features, tool_down, wrap_angle)
 from surrol_data.envs.units import ACTION_POSITION_M, ACTION_YAW_RAD, SCALING
@@ -89,7 +90,8 @@ class BimanualEnv(PsmEnv):
     # ------------------------------------------------------------------ scene
     def _build_world(self) -> None:
         objects.make_table(self.client, visual=self.visual)
-        self.psms = (Psm(self.client, PSM1_RCM, visual=self.visual), Psm(self.client, PSM2_RCM, visual=self.visual))
+        self.psms = (Psm(self.client, PSM1_RCM, PSM1_BASE_YAW_RAD, visual=self.visual),
+                     Psm(self.client, PSM2_RCM, PSM2_BASE_YAW_RAD, visual=self.visual))
         # A shaft does not collide with the other arm: at the oracles' hand-overs the tools meet tip to tip over
         # the block or needle, and the 8 mm shafts, converging from the two RCMs, would touch the other tool's
         # shaft and wrist and jam it (a limit of those plans more than of the arms). Each shaft still collides

@@ -35,6 +35,7 @@ _JAW_COLOUR = (0.2, 0.2, 0.22, 1.0)
 _MOVING_JOINTS = ARM_JOINTS + JAW_JOINTS
 _POSITION_CONTROL = pb.POSITION_CONTROL
 _ROLL_LOWER, _ROLL_UPPER = float(kin.PSM_LOWER[3]), float(kin.PSM_UPPER[3])
+_CARRIED_LINKS = (2, 3, 4, 5, 6, 7, 8)   # the links the insertion joint carries (gravity compensation)
 # Joints whose targets ramp step by step (they carry the tip); the wrist's get their targets at once (their
 # blade-end speeds are small, and a 30° turn needs the whole period at the wrist's speed limit).
 _RAMPED_JOINTS = (0, 1, 2)
@@ -99,6 +100,9 @@ class Psm:
         self._ramp_done = True
         self._jaw_target = 0.0
         self._jaw_stop: float | None = None
+        self._carried_weights = tuple(-self._spec["linkMasses"][j] * physics.GRAVITY[2] for j in _CARRIED_LINKS)
+        self._carried_lift = (0.0, 0.0, sum(self._carried_weights))
+        self._carried_com = (0.0, 0.0, 0.0)
 
     # ------------------------------------------------------------------ construction
     def _build(self) -> int:
@@ -156,7 +160,7 @@ class Psm:
         parents.append(6)
         joint_types.append(pb.JOINT_FIXED)
         axes.append([0, 0, 1])
-        masses.append(0.01)
+        masses.append(physics.PSM_LINK_MASS)
         cols.append(-1)
         viss.append(-1)
 
@@ -198,6 +202,24 @@ class Psm:
         self.client.removeBody(self.body)
         self.body = self._create_body()
         self._jaw_stop = None
+
+    def plan_gravity_compensation(self) -> None:
+        """Once per control period: where the weight of the links that move with the insertion (2–8) acts."""
+        states = pb.getLinkStates(self.body, _CARRIED_LINKS, physicsClientId=self._cid)
+        weights = self._carried_weights
+        total = sum(weights)
+        self._carried_com = tuple(sum(w * st[0][i] for w, st in zip(weights, states)) / total for i in range(3))
+
+    def compensate_gravity(self) -> None:
+        """Before a physics step: hold up the arm's weight, as the dVRK's gravity compensation does.
+
+        The weight of links 2–8 is applied back, upwards, at their common centre of mass (found once per control
+        period; it moves ≤ 5 cm scaled within one, a torque error < 1 % of the motors' limits): that cancels
+        gravity's torque on the outer yaw and pitch and its force on the insertion (links 0 and 1 sit on both axes
+        and feel none). The wrist joints still carry their own few grams, < 10 % of their motors' limit. One
+        PyBullet call per physics step: a force per link at its own centre cost ~40 % of a step."""
+        pb.applyExternalForce(self.body, 2, self._carried_lift, self._carried_com, pb.WORLD_FRAME,
+                              physicsClientId=self._cid)
 
     # ------------------------------------------------------------------ state
     def reset_joints(self, q, jaw: float) -> None:
@@ -345,6 +367,12 @@ class Psm:
                                      motor[k] * SCALING if k == 2 else motor[k], 0.0, physics.PSM_MAX_FORCE[k],
                                      physics.PSM_POSITION_GAIN, physics.PSM_VELOCITY_GAIN, self._vmax_list[k],
                                      self._cid)
+
+    def reapply_motors(self) -> None:
+        """Re-issue the motor commands: PyBullet turns a motor's force limit into an impulse limit with the time
+        step current when the command is given, so after a change of time step they must be given again."""
+        self._apply_arm_targets(self._q_motor)
+        self._apply_jaw_target()
 
     def _apply_jaw_target(self) -> None:
         self._goal_targets = self._goal_targets[:6] + tuple(sign * self._jaw_target / 2 for sign in _JAW_SIGNS)

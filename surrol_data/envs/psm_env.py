@@ -26,6 +26,16 @@ from surrol_data.envs.units import ACTION_POSITION_M, ACTION_YAW_RAD, SCALING, S
 
 # PSM1's remote centre of motion (real metres) and the tip workspace the tasks sample from.
 PSM1_RCM = np.array([0.507, 0.0736, 0.8524])
+# The RCM frame's yaw about the vertical. The reference's base placement (PSM1 −110°, PSM2 −70°) makes joint values
+# match the dVRK's for the same tip pose, and commands are Cartesian (the IK is exact either way), so the oracles
+# do not see it (all ≥ 99 % over 100 seeds with it). It is off until one effect is understood: with it the
+# simulated operators' outcomes change (NeedlePick novice 4 of 8 episodes instead of 7, seeds 1000–1007; the
+# MatchBoard expert loses seed 1000), with no command refused and no roll wrap-around.
+USE_REFERENCE_BASE_YAW = False
+REFERENCE_PSM1_BASE_YAW_RAD = float(np.deg2rad(-110.0))
+REFERENCE_PSM2_BASE_YAW_RAD = float(np.deg2rad(-70.0))
+PSM1_BASE_YAW_RAD = REFERENCE_PSM1_BASE_YAW_RAD if USE_REFERENCE_BASE_YAW else 0.0
+PSM2_BASE_YAW_RAD = REFERENCE_PSM2_BASE_YAW_RAD if USE_REFERENCE_BASE_YAW else 0.0
 WORKSPACE = np.array([[0.50, 0.60], [-0.05, 0.05], [0.675, 0.745]])
 # Commanded tip targets may leave the sampling workspace by this much (low side, high side): the reference's
 # margins (±0.02 xy, +0.08 z) are in its scaled units, i.e. ±4 mm / +16 mm real.
@@ -129,7 +139,7 @@ class PsmEnv(gym.Env):
 
     def _build_world(self) -> None:
         objects.make_table(self.client, visual=self.visual)
-        self.psm = Psm(self.client, PSM1_RCM, visual=self.visual)
+        self.psm = Psm(self.client, PSM1_RCM, PSM1_BASE_YAW_RAD, visual=self.visual)
         self.object_id = -1
         self.build_scene()
         self.goal_marker = objects.make_goal_marker(self.client, visual=self.visual)
@@ -268,23 +278,37 @@ class PsmEnv(gym.Env):
         cid = c._client
         step_simulation = pb.stepSimulation
         planner = self._substeps
-        psms = [grasp.psm for grasp in planner.grasps]
+        arms = [grasp.psm for grasp in planner.grasps]
         planner.plan_tools(physics.TIME_STEP)
+        for psm in arms:
+            psm.plan_gravity_compensation()
+        k_now = 1
         for i in range(steps):
             if i < physics.RAMP_STEPS:   # (a ramp ends at its last step: later calls would do nothing)
-                for psm in psms:
+                for psm in arms:
                     psm.ramp_targets(i)
             k = planner.refinement(physics.TIME_STEP)
-            if k > 1:
-                c.setPhysicsEngineParameter(fixedTimeStep=physics.TIME_STEP / k)
+            if k != k_now:
+                k_now = k
+                self._set_time_step(physics.TIME_STEP / k)
             for _ in range(k):
+                for psm in arms:
+                    psm.compensate_gravity()
                 step_simulation(cid)
                 if watched:
                     watched = [g for g in watched if not g.grip_if_between()]
                 if hook is not None:
                     hook(self)
-            if k > 1:
-                c.setPhysicsEngineParameter(fixedTimeStep=physics.TIME_STEP)
+        if k_now != 1:
+            self._set_time_step(physics.TIME_STEP)
+
+    def _set_time_step(self, dt: float) -> None:
+        """Change the physics step and re-issue the motor commands: PyBullet turns a motor's force limit into an
+        impulse limit with the step current when the command is given, so under a k-times finer step the old
+        commands pushed k times harder than their limit (a tool pressed a block 5 mm into the board)."""
+        self.client.setPhysicsEngineParameter(fixedTimeStep=dt)
+        for grasp in self._substeps.grasps:
+            grasp.psm.reapply_motors()
 
     def tip_pose(self) -> np.ndarray:
         return self._tip
