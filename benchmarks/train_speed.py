@@ -260,7 +260,10 @@ def paper_protocol(args, console: Console) -> None:
         compute_floor(console, full, m, flops, peak, full_epochs)
 
     cpu0, kids0, t0 = time.process_time(), resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
-    runs = train_batched(jobs, overlap=not args.no_overlap, n_workers=cfg0.schedule.n_envs, progress=True)
+    import inspect
+
+    nice = {"worker_nice": args.worker_nice} if "worker_nice" in inspect.signature(train_batched).parameters else {}
+    runs = train_batched(jobs, overlap=not args.no_overlap, n_workers=cfg0.schedule.n_envs, progress=True, **nice)
     batched_wall = time.perf_counter() - t0
     kids = resource.getrusage(resource.RUSAGE_CHILDREN)
     learner_cpu, envs_cpu = time.process_time() - cpu0, (kids.ru_utime + kids.ru_stime) - (kids0.ru_utime + kids0.ru_stime)
@@ -271,6 +274,7 @@ def paper_protocol(args, console: Console) -> None:
     rows, s = runs[0], cfg0.schedule
     scale = s_full.cycles / s.cycles   # a shortened epoch's collection and updates, scaled to the protocol's
     table = Table(title=f"paper protocol, {m} runs as one batched ensemble (overlap={not args.no_overlap}, "
+                        f"worker nice {args.worker_nice}, "
                         f"{s.cycles} of {s_full.cycles} cycles per epoch)")
     for c in ("epoch", "collect s", "update s", "eval s", "epoch s", "learner CPU s", "envs CPU s", "cores busy",
               "env steps/s", "run-updates/s", "GFLOP/s", "of peak", "success (min/median/max)"):
@@ -337,6 +341,7 @@ def main() -> None:
                         help="--protocol paper: cycles per epoch (shorter epochs; collection and updates are scaled "
                              "back to the protocol's 20 in the extrapolation)")
     parser.add_argument("--offline-steps", type=int, default=None, help="--protocol paper: BC pre-training steps")
+    parser.add_argument("--worker-nice", type=int, default=5, help="--protocol paper: the env workers' niceness")
     parser.add_argument("--no-floor", action="store_true", help="--protocol paper: skip the compute-floor table")
     parser.add_argument("--seeds", type=int, nargs="*", default=[0])
     parser.add_argument("--out", type=Path, default=REPO / "runs" / "train_speed")

@@ -96,8 +96,12 @@ class _Member:
 
 
 def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int = 2,
-                  progress: bool = True) -> list[list[dict]]:
-    """Train (or resume) the runs ``cfgs`` as one ensemble; returns every member's per-epoch rows."""
+                  progress: bool = True, worker_nice: int = 5) -> list[list[dict]]:
+    """Train (or resume) the runs ``cfgs`` as one ensemble; returns every member's per-epoch rows.
+
+    ``worker_nice``: the env workers' niceness. During a cycle the learner's updates are one thread the cycle
+    waits for, while the workers' episodes can use whatever CPU is left; with equal priority the scheduler
+    gives the learner only its share of the cores (2/3 of one with two workers on two cores)."""
     _check_members(cfgs)
     for cfg in cfgs:   # as single runs: an earlier run's folder is refused unless resumed or overwritten
         claim_run_dir(Path(cfg.run_dir), resume=cfg.resume, overwrite=cfg.overwrite)
@@ -111,11 +115,14 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
     act_dim = probe.action_space.shape[0]
     reward_fn = probe.unwrapped.compute_reward
     learner = EnsembleDDPG(obs_dim, goal_dim, act_dim, _learner_config(first), [c.seed for c in cfgs])
-    members = []
+    members, demo_sets = [], {}
     for cfg in cfgs:
         replay = EpisodeReplay(s.buffer_episodes, s.max_episode_steps, obs_dim, goal_dim, act_dim, reward_fn,
                                s.her_k, seed=cfg.seed)
-        trajs, eps = load_demos(cfg.demos, cfg.env_id)
+        key = json.dumps(_config_json(cfg)["demos"], sort_keys=True, default=str)
+        if key not in demo_sets:  # the seeds of one demo source share its demo set: read it once
+            demo_sets[key] = load_demos(cfg.demos, cfg.env_id)
+        trajs, eps = demo_sets[key]
         demo_buffer = EpisodeReplay(len(trajs), s.max_episode_steps, obs_dim, goal_dim, act_dim, reward_fn,
                                     s.her_k, seed=cfg.seed + 1) if trajs else None
         member = _Member(cfg, replay, demo_buffer, eps)
@@ -141,7 +148,7 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
     probe.close()
 
     per_member_envs = s.episodes_per_cycle
-    pool = EnvPool(first.env_id, s.max_episode_steps, len(members) * per_member_envs, n_workers)
+    pool = EnvPool(first.env_id, s.max_episode_steps, len(members) * per_member_envs, n_workers, worker_nice)
     demo_buffers = [m.demo_buffer for m in members] if members[0].demo_buffer is not None else None
     replays = [m.replay for m in members]
 
@@ -167,7 +174,15 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
             row["wall_s"] = round(m.state["wall_s"], 3)
             m.log.append(row)
             learner.policy(i).save(m.run_dir / "policy.pt")
-        _save_all(members, learner)
+        # the checkpoints' contents are taken now; writing them (hundreds of MB once the buffers fill) waits
+        # for the next epoch's first rollout, when the learner has no updates to run
+        pending_save.append(_checkpoints(members, learner))
+
+    pending_save: list[list[dict]] = []
+
+    def write_checkpoints() -> None:
+        while pending_save:
+            _write_checkpoints(members, pending_save.pop(0))
 
     bar = tqdm(total=s.epochs, initial=members[0].state["epoch"], unit="epoch", disable=not progress,
                desc=f"train {len(members)} runs {first.env_id.split('/')[-1]}")
@@ -192,11 +207,13 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
             t0 = time.perf_counter()
             for m in members:
                 m.state["epoch"] += 1
-            extras = _online_epoch(members, learner, pool, replays, demo_buffers, overlap)
+            extras = _online_epoch(members, learner, pool, replays, demo_buffers, overlap, write_checkpoints)
             finish_epoch(extras, t0)
             bar.update(1)
             bar.set_postfix(success=" ".join(f"{m.rows[-1]['success_rate']:.2f}" for m in members), refresh=False)
+        write_checkpoints()
     finally:
+        write_checkpoints()   # an interrupted epoch leaves the last finished one's checkpoints, complete
         bar.close()
         pool.close()
         for m in members:
@@ -208,7 +225,7 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
 
 
 def _online_epoch(members: list[_Member], learner: EnsembleDDPG, pool: EnvPool, replays, demo_buffers,
-                  overlap: bool) -> list[dict]:
+                  overlap: bool, while_first_rollout) -> list[dict]:
     s = members[0].cfg.schedule
     per_member = s.episodes_per_cycle
     train_success = [[] for _ in members]
@@ -231,6 +248,7 @@ def _online_epoch(members: list[_Member], learner: EnsembleDDPG, pool: EnvPool, 
         seeds = [m.cfg.seed * TRAIN_SEED_STRIDE + m.state["episodes"] + j for m in members for j in range(per_member)]
         random_actions = members[0].state["env_steps"] < s.warmup_steps
         _start_collect(pool, learner, members, seeds, s.max_episode_steps, random_actions)
+        while_first_rollout()
         if overlap:   # the workers play the cycle's episodes while the last cycle's updates run here
             run_updates(owed)
             owed = 0
@@ -319,11 +337,16 @@ def _member_checkpoint(m: _Member, learner: EnsembleDDPG, i: int) -> dict:
     return ckpt
 
 
-def _save_all(members: list[_Member], learner: EnsembleDDPG) -> None:
+def _checkpoints(members: list[_Member], learner: EnsembleDDPG) -> list[dict]:
+    """Every member's checkpoint as of now (copies: training may go on before they are written)."""
+    return [_member_checkpoint(m, learner, i) for i, m in enumerate(members)]
+
+
+def _write_checkpoints(members: list[_Member], ckpts: list[dict]) -> None:
     tmps = []
-    for i, m in enumerate(members):
+    for m, ckpt in zip(members, ckpts):
         tmp = m.run_dir / "checkpoint.tmp"
-        torch.save(_member_checkpoint(m, learner, i), tmp)
+        torch.save(ckpt, tmp)
         tmps.append(tmp)
     for m, tmp in zip(members, tmps):
         current = m.run_dir / "checkpoint.pt"
