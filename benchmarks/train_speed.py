@@ -4,11 +4,14 @@
     python benchmarks/train_speed.py --runs runs/NeedlePick/ddpgbc/script/seed*   # only summarise finished runs
     python benchmarks/train_speed.py --protocol paper --epochs 3  # the batched path on the paper's 12-run study
 
-``--protocol paper`` trains the Table I study (3 demo sources × 4 seeds, epochs of 40 × 150-step episodes) as one
-batched ensemble for ``--epochs`` epochs and prints, per epoch: collect / update / eval seconds, env steps/s,
-member updates/s, and the achieved GFLOP/s of the updates against a matmul peak measured in the same run; then
-the baseline (the single-run path, ``--baseline-epochs`` epochs of one run, same run) and the extrapolation of
-both to the full 100-epoch study. Demo sources missing on disk (``<demos-root>/NeedlePick_human`` for
+``--protocol paper`` first measures this machine's compute floor for the Table I study in CPU time (one env step
+on one core, one batched 12-run update, the matmul peak; valid on a shared machine), then trains the study
+(3 demo sources × 4 seeds, epochs of 40 × 150-step episodes) as one batched ensemble for ``--epochs`` epochs
+(``--cycles`` shortens them) and prints, per epoch: collect / update / eval seconds, the learner's and the env
+workers' CPU seconds and how many cores they kept busy, env steps/s, member updates/s, and the achieved GFLOP/s
+of the updates against the matmul peak; then the extrapolation to the full 100-epoch study from wall time and
+from CPU time (what a quiet machine would take), and the baseline (the single-run path, ``--baseline-epochs``
+epochs of one run, same run). Demo sources missing on disk (``<demos-root>/NeedlePick_human`` for
 expert/novice) are replaced by the script demos and the table says so: the cost does not depend on the source.
 
 Each run is composed from configs/ exactly as `surrol-data train` would (default: algo=ddpgbc task=NeedlePick
@@ -312,6 +315,20 @@ def paper_protocol(args, console: Console) -> None:
                       f"{s_full.cycles} cycles) + eval {evals:.1f} s + other {other:.1f} s -> {epoch_full:.1f} s per "
                       f"protocol epoch; EXTRAPOLATED full study ({m} runs x {full_epochs} epochs, offline phase "
                       f"excluded): {full_epochs * epoch_full / 3600:.2f} h")
+    timed = [(r, p) for p, r in zip(rows, rows[1:]) if "time_cpu_envs_s" in r]
+    if timed:
+        # the cores' work per protocol epoch, from CPU seconds (valid on a shared machine, where wall time is not):
+        # env CPU per env step x the protocol's steps; learner CPU scaled with the updates
+        env_step_cpu = statistics.median([r["time_cpu_envs_s"] / (m * (r["env_steps"] - p["env_steps"])
+                                          + m * s.eval_episodes * s.max_episode_steps) for r, p in timed])
+        learner = statistics.median([r["time_cpu_learner_s"] for r, _ in timed]) * scale
+        envs = env_step_cpu * m * (s_full.cycles * s_full.episodes_per_cycle + s_full.eval_episodes) * s_full.max_episode_steps
+        cores = os.cpu_count() or 1
+        epoch_cpu = max(learner, (learner + envs) / cores)
+        console.print(f"CPU per protocol epoch: learner {learner:.0f} s (one thread), env workers {envs:.0f} s "
+                      f"({env_step_cpu * 1e3:.2f} ms per env step) -> {epoch_cpu:.0f} s per epoch with all {cores} cores "
+                      f"busy; PROJECTED full study on a quiet machine ({m} runs x {full_epochs} epochs): "
+                      f"{full_epochs * epoch_cpu / 3600:.2f} h")
     if single_rows:
         online = [r for r in single_rows if r["epoch"] > 0]
         walls = [b["wall_s"] - a["wall_s"] for a, b in zip(single_rows, single_rows[1:])]

@@ -32,8 +32,8 @@ INFO_KEYS = ("is_success", "tip_position", "jaw_angle")
 class PolicySnapshot:
     """Every member's deterministic actor π = tanh(MLP(clip((o−μ)/σ), clip((g−μ)/σ))) as plain arrays.
 
-    ``weights[k]`` (M, in, out) and ``biases[k]`` (M, out) float32 per layer (layer k: x ↦ x·w + b); normaliser statistics (M, dim)
-    float64, normalised exactly as :meth:`~surrol_data.algos.normalizer.Normalizer.normalize` does.
+    ``weights[k]`` (M, in, out) and ``biases[k]`` (M, out) float32 per layer (layer k: x ↦ x·w + b);
+    normaliser statistics (M, dim) float64, normalised exactly as :meth:`~surrol_data.algos.normalizer.Normalizer.normalize` does.
     """
     weights: list[np.ndarray]
     biases: list[np.ndarray]
@@ -107,7 +107,8 @@ def _rollout(envs: list, seeds: np.ndarray, snapshot: PolicySnapshot | None, exp
         trace.update({"tip_position": [info["tip_position"]], "jaw_angle": [info["jaw_angle"]],
                       "action": [], "reward": [], "success": []})
         for t in range(steps):
-            a = actor(obs["observation"], obs["desired_goal"]) if actor is not None else np.zeros((len(envs), act_dim), np.float32)
+            a = (actor(obs["observation"], obs["desired_goal"]) if actor is not None
+                 else np.zeros((len(envs), act_dim), np.float32))
             a = explored_action(a, explore, t)
             results = [env.step(ai) for env, ai in zip(envs, a)]
             obs = _stack([r[0] for r in results])

@@ -8,17 +8,19 @@ The same run as :func:`surrol_data.algos.train.train`, for M runs at once, read 
    ``checkpoint.pt`` — the checkpoint is the single run's format, written from the member's slice;
 2. offline phase: BC pre-training of all actors in one batched step each (and the optional critic warm-up);
 3. online epochs: every cycle collects every member's ``episodes_per_cycle`` episodes at once in an
-   :class:`~surrol_data.algos.env_pool.EnvPool` (M × episodes_per_cycle envs on ``n_workers`` processes),
-   one batched actor call per env step for all members. With ``overlap`` the previous cycle's updates run
-   in the parent *while the workers step the envs* (spread evenly over the episode's steps), so the two
-   cores are busy with envs and updates at the same time; the cost is a policy one cycle staler than the
-   serial schedule's (off-policy learning does not care) — ``overlap=False`` gives the serial schedule;
+   :class:`~surrol_data.algos.env_pool.EnvPool` (M × episodes_per_cycle envs on ``n_workers`` processes). The
+   workers play whole episodes on their own, from a snapshot of the actors and the exploration noise drawn
+   here from each member's generator, so there is no round trip per env step. With ``overlap`` the previous
+   cycle's updates run in this process *while the workers play*, so the two cores are busy with envs and
+   updates at the same time; the cost is a policy one cycle staler than the serial schedule's (off-policy
+   learning does not care) — ``overlap=False`` gives the serial schedule;
 4. evaluation of all members through the same pool, deterministic, on the single run's evaluation seeds,
    scored by the same proficiency metrics; then per member one metrics row and one checkpoint.
 
 A member's training episodes use the single run's seeds (``seed·1e6 + episode``) and the member draws its
-batches and exploration noise from its own generator in the single run's order, so a member reproduces the
-single run up to floating-point rounding of the batched kernels (and, with ``overlap``, the policy lag).
+batches and exploration noise from its own generator in the single run's order (with ``overlap`` a cycle's
+noise is drawn before, not after, the previous cycle's batches), so a member reproduces the single run up to
+floating-point rounding of the batched kernels (and, with ``overlap``, the policy lag and that draw order).
 
 Exact resume after SIGKILL: member checkpoints are written to temporary files first and then moved into
 place one by one, keeping the one they replace as ``checkpoint.prev.pt``; a kill between two moves leaves
