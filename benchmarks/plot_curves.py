@@ -139,8 +139,12 @@ def main() -> None:
     if probed:
         axes[1][0].set_ylabel("RMS action distance\nfrom the BC actor (demo states)")
         axes[1][-1].axis("off")
+        top = max(ax.get_ylim()[1] for ax in axes[1][:-1])
         for ax in axes[1][:-1]:
             ax.grid(alpha=0.3)
+            ax.set_ylim(0, top)
+            if not ax.lines:
+                ax.text(0.5, 0.5, "not logged (algo.params.probe=false)", ha="center", transform=ax.transAxes)
     for ax in axes[-1]:
         ax.set_xlabel("env steps (thousands)")
     fig.suptitle(args.title)

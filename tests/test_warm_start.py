@@ -148,3 +148,29 @@ def test_warm_algo_runs_the_smoke_experiment_with_its_pieces_logged(tmp_path, re
     for row in rows[1:]:  # the filter and the probe are live in every online epoch
         assert 0.0 <= row["advantage_pass"] <= 1.0 and row["probe_pi_to_bc"] > 0.0
     assert json.loads((tmp_path / "run" / "metrics.jsonl").read_text().splitlines()[-1])["epoch"] == 3
+
+
+def _criteria_of(successes, steps_per_epoch=2000):
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from plot_curves import criteria
+
+    return criteria([{"epoch": e, "env_steps": e * steps_per_epoch, "success_rate": s} for e, s in enumerate(successes)])
+
+
+def test_plot_curves_check_reads_the_issue_criteria():
+    baseline = [_criteria_of([0.8, 0.0, 0.0, 0.5, 0.9] + [0.9] * 8)] * 3        # 90 % first at epoch 4: 8k steps
+    kept = [_criteria_of([0.6, 0.4, 0.5, 0.7, 0.95] + [0.9] * 8)] * 3           # min 0.4 >= 0.5 x 0.6, 8k steps
+    from plot_curves import check  # importable once _criteria_of has put benchmarks/ on the path
+
+    assert check({"ddpgbc": baseline, "warm": kept}) == []
+    dropped = [_criteria_of([0.6, 0.2, 0.5, 0.7, 0.95] + [0.9] * 8)] * 3        # 0.2 < 0.3
+    assert any("fell to 0.20" in f for f in check({"ddpgbc": baseline, "warm": dropped}))
+    slower = [_criteria_of([0.6, 0.4, 0.5, 0.7, 0.8, 0.95] + [0.9] * 7)] * 3    # 10k steps > 8k
+    assert any("median steps" in f for f in check({"ddpgbc": baseline, "warm": slower}))
+    short = [_criteria_of([0.6, 0.5, 0.95])] * 3
+    assert any("only 2 online epochs" in f for f in check({"ddpgbc": baseline, "warm": short}))
+    never = [_criteria_of([0.8] + [0.5] * 12)] * 3
+    assert any("ddpgbc seed 0" in f for f in check({"ddpgbc": never, "warm": kept}))
