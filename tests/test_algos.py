@@ -300,9 +300,9 @@ def test_hydra_configs_compose_into_train_configs(tmp_path, monkeypatch):
         assert paper.schedule.max_episode_steps == 150 and paper.schedule.episodes_per_cycle * paper.schedule.cycles == 40
         assert paper.learner == "sac" and paper.schedule.her_k == 4 and paper.demos.path is None
         warm = to_train_config(compose("config", ["algo=ddpgbc_warm"]))
-        assert warm.learner_params["q_normalize"] and warm.learner_params["critic_pretrain_steps"] > 0
+        assert warm.learner_params["filtered_bc"] and warm.learner_params["critic_pretrain_steps"] > 0
         assert warm.run_dir.endswith("ddpgbc_warm/script/seed0")
         # the paper-faithful default has none of the warm start
-        assert not {"q_normalize", "critic_pretrain_steps", "actor_hold_updates"} & set(expert.learner_params)
+        assert not {"filtered_bc", "freeze_normalizer", "critic_pretrain_steps", "actor_hold_updates"} & set(expert.learner_params)
         reference = to_train_config(compose("config", ["experiment=reference", "algo=bc"]))
         assert reference.schedule.max_episode_steps == 50 and not reference.schedule.online
