@@ -11,7 +11,7 @@ import pytest
 
 import surrol_data.envs  # noqa: F401  (registers the ids)
 from surrol_data.collect.haptic_source import _human_horizon, collect_haptic
-from surrol_data.collect.mapping import MappingSettings
+from surrol_data.collect.mapping import ActionMapper, MappingSettings
 from surrol_data.collect.operator import SimulatedOperator
 from surrol_data.datasets.reader import DatasetReader
 from surrol_data.datasets.validate import validate_dataset
@@ -90,3 +90,56 @@ def test_expert_and_novice_succeed_on_every_task(tmp_path, task, skill):
                    max_steps=horizon)
     assert res.attempts == 5
     assert res.attempts - res.failures >= (4 if skill == "expert" else 1), (task, skill, res.failures)
+
+
+def _episode(env, operator, seed, horizon):
+    """The haptic session's per-step loop for one simulated operator on a single-PSM task; ends on success."""
+    mapper = ActionMapper(operator.mapping)
+    obs, info = env.reset(seed=seed)
+    for _ in range(horizon):
+        operator.observe(obs, info)
+        obs, _, terminated, truncated, info = env.step(mapper(operator.read()).arm)
+        if info["is_success"] or terminated or truncated:
+            break
+    return bool(info["is_success"])
+
+
+def test_placing_step_aims_the_block_not_the_tool():
+    # MatchBoard's plan carries the block over its groove and lowers it (the placing step) before opening: a
+    # person turns the block until it looks aligned with the groove, i.e. aims for the block's yaw 0 whatever
+    # angle the jaws took it at.
+    env = gym.make("SurRoL/MatchBoard-v0")
+    try:
+        op = SimulatedOperator(env.unwrapped, "expert", "e", MappingSettings(), 0)
+        obs, info = env.reset(seed=3)
+        op.observe(obs, info)
+        placing = [i for i, g in enumerate(op._plan) if g.placing]
+        assert len(placing) == 1, placing
+        i = placing[0]
+        assert op._plan[i].jaw_closed and not op._plan[i + 1].jaw_closed
+        assert abs(op._plan[i].object_yaw) < 1e-6
+        # NeedlePick lifts the needle and never lets go: nothing to place.
+        pick = gym.make("SurRoL/NeedlePick-v0")
+        try:
+            op2 = SimulatedOperator(pick.unwrapped, "expert", "e", MappingSettings(), 0)
+            op2.observe(*pick.reset(seed=0))
+            assert not any(g.placing for g in op2._plan)
+        finally:
+            pick.close()
+    finally:
+        env.close()
+
+
+def test_a_failed_placement_is_picked_up_and_placed_again():
+    # A person content with 17° of misalignment (yaw accuracy 0.3 rad) lets the block go beside its groove's
+    # orientation; it does not drop in, they see it, grasp it again where it lies and place it once more.
+    env = gym.make("SurRoL/MatchBoard-v0", max_episode_steps=400)
+    try:
+        op = SimulatedOperator(env.unwrapped, "expert", "sloppy", MappingSettings(), 0,
+                               overrides={"yaw_accuracy_rad": 0.3})
+        op.connect()
+        assert _episode(env, op, seed=1, horizon=400)
+        events = [e for _, e in op.events if e in ("close", "open", "placement-failed")]
+        assert events == ["close", "open", "placement-failed", "close", "open"], events
+    finally:
+        env.close()
