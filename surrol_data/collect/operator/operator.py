@@ -277,7 +277,8 @@ class SimulatedOperator(Device):
                 snapshot=bool(wp.get("snapshot", False)),
                 placing=placing,
                 object_yaw=(float(wrap_angle(anchor[3] + float(wp["yaw"]) - float(grasp_yaw)))
-                            if placing and self.view.controls_angle and "yaw" in wp and grasp_yaw is not None
+                            if placing and self.view.controls_angle and not self.view.pitch and "yaw" in wp
+                            and grasp_yaw is not None
                             and anchor is not None else None)))
         return goals
 
