@@ -256,6 +256,9 @@ class SimulatedOperator(Device):
         goals = []
         closed = [self.view.uses_jaw and float(wp["jaw"]) < 0 for wp in plan]
         grasp_yaw = None      # the tool's yaw where the plan last closed the jaw on the object
+        # The observation shows one object; where the plan grasps several (a drawer's handle, then a block; three
+        # jacks) it is not the one every placing step places, and its yaw says nothing about the seat.
+        one_object = sum(closed[i] and (i == 0 or not closed[i - 1]) for i in range(len(plan))) == 1
         for i, wp in enumerate(plan):
             if closed[i] and (i == 0 or not closed[i - 1]):
                 grasp_yaw = wp.get("yaw")
@@ -277,7 +280,7 @@ class SimulatedOperator(Device):
                 snapshot=bool(wp.get("snapshot", False)),
                 placing=placing,
                 object_yaw=(float(wrap_angle(anchor[3] + float(wp["yaw"]) - float(grasp_yaw)))
-                            if placing and self.view.controls_angle and not self.view.pitch and "yaw" in wp
+                            if placing and one_object and self.view.controls_angle and not self.view.pitch and "yaw" in wp
                             and grasp_yaw is not None
                             and anchor is not None else None)))
         return goals
