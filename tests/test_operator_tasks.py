@@ -78,18 +78,22 @@ def test_team_waits_for_the_other_hand():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("skill", ["expert", "novice"])
 @pytest.mark.parametrize("task", list(surrol_data.envs.TASKS))
-def test_expert_and_novice_succeed_on_every_task(tmp_path, task, skill):
-    """Five attempts per task and skill: experts at the session's default horizon, novices (who take about
-    twice as long, see the README's operator table) at twice it. Experts succeed in most attempts; novices in
-    some (on the two-arm tasks a novice identity may fail 3–4 of 5 hand-overs)."""
-    eid = surrol_data.envs.env_id(task)
-    horizon = _human_horizon(eid, gym.spec(eid).max_episode_steps) * (2 if skill == "novice" else 1)
-    res = _collect(task, tmp_path / "ds", skill=skill, episodes=5, keep_failures=True, max_attempts=5,
-                   max_steps=horizon)
-    assert res.attempts == 5
-    assert res.attempts - res.failures >= (4 if skill == "expert" else 1), (task, skill, res.failures)
+def test_expert_and_novice_succeed_on_every_task(tmp_path, task):
+    """The README's operator table (``benchmarks/operator_tasks.py --episodes 10``, the same identities and seeds):
+    ten attempts per skill at the session's default horizon; experts succeed in at least 8, novices in at least 5,
+    and novices take longer (ActiveTrack succeeds at its first step whoever holds the stylus)."""
+    steps = {}
+    for skill, at_least in (("expert", 8), ("novice", 5)):
+        out = tmp_path / skill
+        res = collect_haptic(task, 10, out, device="operator", skill=skill, operator_id=f"{skill}-1", seed=0,
+                             keep_failures=True, max_attempts=10, progress=False)
+        assert res.attempts == 10
+        assert res.attempts - res.failures >= at_least, (task, skill, res.failures)
+        ep = DatasetReader(out).episodes
+        steps[skill] = ep.loc[ep["success"].astype(bool), "steps_to_success"].astype(float).mean()
+    if task != "ActiveTrack":
+        assert steps["novice"] > steps["expert"], steps
 
 
 def _episode(env, operator, seed, horizon):
@@ -143,3 +147,15 @@ def test_a_failed_placement_is_picked_up_and_placed_again():
         assert events == ["close", "open", "placement-failed", "close", "open"], events
     finally:
         env.close()
+
+
+def test_human_horizon_per_task():
+    # 3× the registered horizon in time; PegTransfer from MatchBoard's 100 steps (the reference's 50 is a
+    # script's); an ECM task's 0.1 s steps count twice; two hands take turns.
+    def horizon(task):
+        eid = surrol_data.envs.env_id(task)
+        return _human_horizon(eid, gym.spec(eid).max_episode_steps)
+
+    assert horizon("NeedlePick") == 150          # the paper's human NeedlePick recordings
+    assert horizon("PegTransfer") == horizon("MatchBoard") == 300
+    assert horizon("ECMReach") == 300 and horizon("BiPegTransfer") == 300
