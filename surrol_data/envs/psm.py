@@ -34,6 +34,7 @@ _JAW_COLOUR = (0.2, 0.2, 0.22, 1.0)
 
 _MOVING_JOINTS = ARM_JOINTS + JAW_JOINTS
 _POSITION_CONTROL = pb.POSITION_CONTROL
+_WORLD_FRAME = pb.WORLD_FRAME
 _ROLL_LOWER, _ROLL_UPPER = float(kin.PSM_LOWER[3]), float(kin.PSM_UPPER[3])
 _CARRIED_LINKS = (2, 3, 4, 5, 6, 7, 8)   # the links the insertion joint carries (gravity compensation)
 # Joints whose targets ramp step by step (they carry the tip); the wrist's get their targets at once (their
@@ -218,8 +219,8 @@ class Psm:
         gravity's torque on the outer yaw and pitch and its force on the insertion (links 0 and 1 sit on both axes
         and feel none). The wrist joints still carry their own few grams, < 10 % of their motors' limit. One
         PyBullet call per physics step: a force per link at its own centre cost ~40 % of a step."""
-        pb.applyExternalForce(self.body, 2, self._carried_lift, self._carried_com, pb.WORLD_FRAME,
-                              physicsClientId=self._cid)
+        # (objectUniqueId, linkIndex, forceObj, posObj, flags, physicsClientId: positional, as it runs every step)
+        pb.applyExternalForce(self.body, 2, self._carried_lift, self._carried_com, _WORLD_FRAME, self._cid)
 
     # ------------------------------------------------------------------ state
     def reset_joints(self, q, jaw: float) -> None:
