@@ -11,6 +11,8 @@ Link indices: 0 outer yaw, 1 outer pitch, 2 insertion, 3 tool roll, 4 wrist pitc
 
 from __future__ import annotations
 
+from operator import mul as _mul
+
 import numpy as np
 from surrol_data.envs.physics import pb  # physics imports pybullet quietly
 
@@ -207,9 +209,12 @@ class Psm:
     def plan_gravity_compensation(self) -> None:
         """Once per control period: where the weight of the links that move with the insertion (2–8) acts."""
         states = pb.getLinkStates(self.body, _CARRIED_LINKS, physicsClientId=self._cid)
-        weights = self._carried_weights
-        total = sum(weights)
-        self._carried_com = tuple(sum(w * st[0][i] for w, st in zip(weights, states)) / total for i in range(3))
+        weights, total = self._carried_weights, self._carried_lift[2]   # (the lift is the weights' sum)
+        # The weighted sums of the links' x, y and z, as sum() adds them (map and operator.mul: the same products
+        # in the same order, without a generator per axis).
+        xs, ys, zs = zip(*[state[0] for state in states])
+        self._carried_com = (sum(map(_mul, weights, xs)) / total, sum(map(_mul, weights, ys)) / total,
+                             sum(map(_mul, weights, zs)) / total)
 
     def compensate_gravity(self) -> None:
         """Before a physics step: hold up the arm's weight, as the dVRK's gravity compensation does.
