@@ -16,6 +16,7 @@ stroke the jaws close across) and the block's Euler angles.
 
 from __future__ import annotations
 
+import functools
 import struct
 
 import numpy as np
@@ -27,6 +28,15 @@ from surrol_data.envs.numeric import norm
 from surrol_data.envs.psm_env import WORKSPACE, PsmEnv, wrap_angle
 
 OPEN, CLOSE = 0.5, -0.5
+
+
+@functools.cache
+def _grasp_offset(glyph: str) -> np.ndarray:
+    """The top of the grasped stroke in the block's glyph frame (metres), a constant per glyph."""
+    pixel, _ = mb.grasp_pixel(glyph)
+    offset = np.array([pixel[0], pixel[1], mb.BLOCK_HEIGHT / 2])
+    offset.setflags(write=False)
+    return offset
 
 
 class GlyphBlockScene:
@@ -72,8 +82,7 @@ class GlyphBlockScene:
     def grasp_point(self) -> np.ndarray:
         """Top of the stroke the jaws close across (world, real metres)."""
         centre, rot = self.block_pose()
-        pixel, _ = mb.grasp_pixel(self.glyph)
-        return centre + rot @ np.array([pixel[0], pixel[1], mb.BLOCK_HEIGHT / 2])
+        return centre + rot @ _grasp_offset(self.glyph)
 
     def block_achieved_goal(self) -> np.ndarray:
         return self.block_pose()[0]

@@ -124,8 +124,8 @@ class MatchBoardPanel(GlyphBlockScene, PsmEnv):
                                [dr.opening(self.client, self.drawer)]])
 
     def _info(self, obs: dict) -> dict:
-        info = super()._info(obs)
         opened, in_cell = self.subtasks_done(obs["achieved_goal"], obs["desired_goal"])
+        info = super()._info(obs, success=opened & in_cell)   # (is_success is exactly this)
         info["subtasks"] = {SUBTASKS[0]: bool(opened), SUBTASKS[1]: bool(opened and in_cell)}
         return info
 
