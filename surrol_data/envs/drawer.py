@@ -152,7 +152,7 @@ def spawn_drawer(client, spec: dict, cabinet: Cabinet) -> int:
 
 def opening(client, drawer: int) -> float:
     """How far the drawer is out (real metres)."""
-    return float(client.getJointState(drawer, 0)[0]) / SCALING
+    return float(pb.getJointState(drawer, 0, client._client)[0]) / SCALING   # (positional: asked for every step)
 
 
 def table_z() -> float:

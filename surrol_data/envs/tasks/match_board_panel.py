@@ -120,8 +120,8 @@ class MatchBoardPanel(GlyphBlockScene, PsmEnv):
         return self.block_object_state()
 
     def observation_vector(self) -> np.ndarray:
-        return np.concatenate([super().observation_vector(), self.handle_position(),
-                               [dr.opening(self.client, self.drawer)]])
+        opening = dr.opening(self.client, self.drawer)
+        return np.concatenate([super().observation_vector(), self.cabinet.handle_position(opening), [opening]])
 
     def _info(self, obs: dict) -> dict:
         opened, in_cell = self.subtasks_done(obs["achieved_goal"], obs["desired_goal"])
