@@ -8,9 +8,9 @@ For each task and skill (``expert``, ``novice``) it records ``episodes`` attempt
 into a temporary dataset and reads success, steps to success and tool path back from the episodes' provenance —
 the numbers ``surrol-data info`` shows — and where skill shows from the recorded episodes (the proficiency
 metrics of ``surrol-data assess``): failed grasps, clutch uses and idle time per episode. The script oracle's row
-(same seeds, registered horizon) is the reference (its skill columns are left empty: it runs on after success). Steps and path are mean ± sd over the successful episodes; the
-per-episode counts are means over all episodes. Everything is seeded, so a task's rows do not depend on which
-other tasks run.
+(same seeds, registered horizon) is the reference (its skill columns are left empty: it runs on after success).
+Steps and path are mean ± sd over the successful episodes; the per-episode counts are means over all episodes.
+Everything is seeded, so a task's rows do not depend on which other tasks run.
 """
 
 from __future__ import annotations

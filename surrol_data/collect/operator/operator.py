@@ -15,7 +15,11 @@ scene's exact numbers:
   move would run into the edge of the stylus' workspace — experts re-position before a long move, novices
   when they hit the edge;
 * **recover**: when the object does not come along as the tool lifts or pulls (``info["grasped"]`` is false), open,
-  back off, re-approach the object where it now lies, and grasp again; give up after a few failures.
+  back off, re-approach the object where it now lies, and grasp again; give up after a few failures;
+* **place**: bringing a held object to where the plan lets go of it, judge it against its seat right beside it
+  (finer perception, the task's tolerance, more corrections; on a one-object task turn the object, not the tool,
+  until it looks aligned); after letting go on a one-hand task, watch it settle and, when the task's success does
+  not show, pick it up again where it lies and place it once more.
 
 What the operator sees of a task comes through a view (:mod:`.views`): one PSM as it is, one arm of a bimanual
 task (two operators made the hands of one person with :meth:`SimulatedOperator.work_together` share the
@@ -173,7 +177,7 @@ class SimulatedOperator(Device):
     @property
     def events(self) -> tuple[tuple[float, str], ...]:
         """What the operator did this episode, as (seconds since the episode began, event): ``clutch``, ``hesitate``, ``close``,
-        ``open``, ``grasp-failed``, ``gave-up``, ``done``."""
+        ``open``, ``grasp-failed``, ``placement-failed``, ``gave-up``, ``done``."""
         return tuple(self._events)
 
     def observe(self, obs: dict, info: dict) -> None:
@@ -280,9 +284,8 @@ class SimulatedOperator(Device):
                 snapshot=bool(wp.get("snapshot", False)),
                 placing=placing,
                 object_yaw=(float(wrap_angle(anchor[3] + float(wp["yaw"]) - float(grasp_yaw)))
-                            if placing and one_object and self.view.controls_angle and not self.view.pitch and "yaw" in wp
-                            and grasp_yaw is not None
-                            and anchor is not None else None)))
+                            if placing and one_object and self.view.controls_angle and not self.view.pitch
+                            and "yaw" in wp and grasp_yaw is not None and anchor is not None else None)))
         return goals
 
     # ------------------------------------------------------------------ perceiving
