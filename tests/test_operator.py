@@ -195,9 +195,11 @@ def test_clutch_at_the_workspace_edge(pick_env):
     for k in onsets:
         # A novice clutches when the hand is at (or nearly at) the edge of the stylus workspace ...
         assert np.max(np.abs(position[k]) / DEVICE_HALF_RANGE[:3]) > 0.8, position[k]
-        # ... and comes back off it, nearer the centre, with the clutch released.
+        # ... and brings that axis back nearer the centre, with the clutch released. (Another axis may still be
+        # finishing the move that was under way, so only the axis at the edge is checked.)
         release = k + int(np.argmax(~clutched[k:]))
-        assert np.max(np.abs(position[release]) / DEVICE_HALF_RANGE[:3]) < np.max(np.abs(position[k]) / DEVICE_HALF_RANGE[:3])
+        edge = int(np.argmax(np.abs(position[k]) / DEVICE_HALF_RANGE[:3]))
+        assert abs(position[release, edge]) < abs(position[k, edge]), (position[k], position[release])
     # Clutched frames move nothing; their buttons carry BUTTON_CLUTCH.
     assert np.all(traj.action[clutched, :4] == 0)
     assert all(frames[k].buttons & BUTTON_CLUTCH for k in np.flatnonzero(clutched))

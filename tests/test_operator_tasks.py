@@ -135,16 +135,19 @@ def test_placing_step_aims_the_block_not_the_tool():
 
 
 def test_a_failed_placement_is_picked_up_and_placed_again():
-    # A person content with 17° of misalignment (yaw accuracy 0.3 rad) lets the block go beside its groove's
-    # orientation; it does not drop in, they see it, grasp it again where it lies and place it once more.
+    # A person content with ~40° of misalignment (yaw accuracy 1.4 rad, halved while placing) lets the block go
+    # beside its groove's orientation; it does not drop in (the groove seats it only within 10°), they see it,
+    # grasp it again where it lies and place it once more — as sloppily, so it may fail again — and give up
+    # after their number of attempts. (A compliant, force-limited tool seats blocks up to ~17° off by itself.)
     env = gym.make("SurRoL/MatchBoard-v0", max_episode_steps=400)
     try:
         op = SimulatedOperator(env.unwrapped, "expert", "sloppy", MappingSettings(), 0,
-                               overrides={"yaw_accuracy_rad": 0.3})
+                               overrides={"yaw_accuracy_rad": 1.4})
         op.connect()
-        assert _episode(env, op, seed=1, horizon=400)
+        _episode(env, op, seed=2, horizon=400)
         events = [e for _, e in op.events if e in ("close", "open", "placement-failed")]
-        assert events == ["close", "open", "placement-failed", "close", "open"], events
+        assert events[:5] == ["close", "open", "placement-failed", "close", "open"], events
+        assert 2 <= events.count("placement-failed") <= op.params.max_grasp_attempts, events
     finally:
         env.close()
 
