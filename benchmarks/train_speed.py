@@ -4,11 +4,14 @@
     python benchmarks/train_speed.py --runs runs/NeedlePick/ddpgbc/script/seed*   # only summarise finished runs
     python benchmarks/train_speed.py --protocol paper --epochs 3  # the batched path on the paper's 12-run study
 
-``--protocol paper`` trains the Table I study (3 demo sources × 4 seeds, epochs of 40 × 150-step episodes) as one
-batched ensemble for ``--epochs`` epochs and prints, per epoch: collect / update / eval seconds, env steps/s,
-member updates/s, and the achieved GFLOP/s of the updates against a matmul peak measured in the same run; then
-the baseline (the single-run path, ``--baseline-epochs`` epochs of one run, same run) and the extrapolation of
-both to the full 100-epoch study. Demo sources missing on disk (``<demos-root>/NeedlePick_human`` for
+``--protocol paper`` first measures this machine's compute floor for the Table I study in CPU time (one env step
+on one core, one batched 12-run update, the matmul peak; valid on a shared machine), then trains the study
+(3 demo sources × 4 seeds, epochs of 40 × 150-step episodes) as one batched ensemble for ``--epochs`` epochs
+(``--cycles`` shortens them) and prints, per epoch: collect / update / eval seconds, the learner's and the env
+workers' CPU seconds and how many cores they kept busy, env steps/s, member updates/s, and the achieved GFLOP/s
+of the updates against the matmul peak; then the extrapolation to the full 100-epoch study from wall time and
+from CPU time (what a quiet machine would take), and the baseline (the single-run path, ``--baseline-epochs``
+epochs of one run, same run). Demo sources missing on disk (``<demos-root>/NeedlePick_human`` for
 expert/novice) are replaced by the script demos and the table says so: the cost does not depend on the source.
 
 Each run is composed from configs/ exactly as `surrol-data train` would (default: algo=ddpgbc task=NeedlePick
@@ -21,8 +24,10 @@ and final success; then the median over seeds. Targets: >= 90 % within 100k env 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import sys
+import time
 from pathlib import Path
 
 from rich.console import Console
@@ -111,9 +116,8 @@ def update_flops(obs_dim: int, goal_dim: int, act_dim: int, hidden: list[int], b
 
 
 def matmul_peak_gflops(members: int, batch: int, width: int, repeats: int = 200) -> float:
-    """Median GFLOP/s of the batched 256-wide matmul the ensemble's hidden layers run, on this process's threads."""
-    import time
-
+    """GFLOP/s of the batched 256-wide matmul the ensemble's hidden layers run, on one thread, in CPU time
+    (``time.thread_time``): what the core delivers while it runs this thread, whatever else shares the machine."""
     import torch
 
     x, w = torch.randn(members, batch, width), torch.randn(members, width, width)
@@ -121,15 +125,98 @@ def matmul_peak_gflops(members: int, batch: int, width: int, repeats: int = 200)
         torch.bmm(x, w)
     times = []
     for _ in range(5):
-        t = time.perf_counter()
+        t = time.thread_time()
         for _ in range(repeats):
             torch.bmm(x, w)
-        times.append((time.perf_counter() - t) / repeats)
+        times.append((time.thread_time() - t) / repeats)
     return 2.0 * members * batch * width * width / statistics.median(times) / 1e9
 
 
+def env_step_cpu_s(env_id: str, steps: int, episodes: int = 3) -> float:
+    """Median CPU seconds of one env step (random actions, resets excluded), one env on one core."""
+    import numpy as np
+
+    from surrol_data.algos.train import make_env
+
+    env = make_env(env_id, steps)
+    rng = np.random.default_rng(0)
+    per_step = []
+    for ep in range(episodes):
+        env.reset(seed=ep)
+        t = time.thread_time()
+        for _ in range(steps):
+            env.step(rng.uniform(-1.0, 1.0, env.action_space.shape).astype(np.float32))
+        per_step.append((time.thread_time() - t) / steps)
+    env.close()
+    return statistics.median(per_step)
+
+
+def ensemble_update_cpu_s(members: int, learner_params: dict, her_k: int, repeats: int = 10) -> float:
+    """Median CPU seconds of one batched update of ``members`` NeedlePick-sized members (random buffers)."""
+    import numpy as np
+
+    from surrol_data.algos.ddpg import DDPGConfig
+    from surrol_data.algos.ensemble import EnsembleDDPG
+    from surrol_data.algos.replay import EpisodeReplay
+
+    params = {k: (tuple(v) if k == "hidden_sizes" else v) for k, v in learner_params.items()}
+    learner = EnsembleDDPG(19, 3, 5, DDPGConfig(**params), list(range(members)))
+    reward = lambda ag, g: -(np.linalg.norm(ag - g, axis=-1) > 0.05).astype(np.float32)  # noqa: E731
+    replays, demos = [], []
+    for i in range(members):
+        rng = np.random.default_rng(i)
+        pair = [EpisodeReplay(200, 150, 19, 3, 5, reward, her_k, seed=i) for _ in range(2)]
+        for buf in pair:
+            for _ in range(50):
+                buf.add_episode(rng.standard_normal((151, 19)), rng.standard_normal((151, 3)),
+                                rng.standard_normal((150, 3)), rng.uniform(-1, 1, (150, 5)))
+        learner.inputs[i].update(pair[0].obs[:50].reshape(-1, 19), pair[0].g[:50].reshape(-1, 3))
+        replays.append(pair[0])
+        demos.append(pair[1])
+    for _ in range(3):
+        learner.update(replays, demos)
+    times = []
+    for _ in range(5):
+        t = time.thread_time()
+        for _ in range(repeats):
+            learner.update(replays, demos)
+        times.append((time.thread_time() - t) / repeats)
+    return statistics.median(times)
+
+
+def compute_floor(console: Console, cfg0, m: int, flops: float, peak: float, full_epochs: int) -> None:
+    """What this machine cannot go below, measured: env steps (training + evaluation) at one env per core, and
+    the updates at the matmul peak; both over the machine's cores, with nothing wasted."""
+    s = cfg0.schedule
+    cores = os.cpu_count() or 1
+    step_s = env_step_cpu_s(cfg0.env_id, s.max_episode_steps)
+    upd_s = ensemble_update_cpu_s(m, cfg0.learner_params, s.her_k)
+    per_epoch_steps = s.cycles * s.episodes_per_cycle * s.max_episode_steps
+    eval_steps = s.eval_episodes * s.max_episode_steps
+    steps = m * (full_epochs * (per_epoch_steps + eval_steps) + eval_steps)
+    updates = full_epochs * s.cycles * s.updates_per_cycle          # ensemble updates (each: all m members)
+    env_core_s = steps * step_s
+    upd_core_s, upd_peak_core_s = updates * upd_s, updates * m * flops / (peak * 1e9)
+    table = Table(title=f"compute floor of the full study on this machine ({m} runs x {full_epochs} epochs, {cores} cores)")
+    for c in ("work", "amount", "CPU per unit", "core-hours", f"hours on {cores} cores"):
+        table.add_column(c, justify="right")
+    table.add_row("env steps (train + eval)", f"{steps / 1e6:.2f} M", f"{step_s * 1e3:.2f} ms/step "
+                  f"({1 / step_s:.0f} steps/s/core)", f"{env_core_s / 3600:.2f}", f"{env_core_s / 3600 / cores:.2f}")
+    table.add_row("updates at matmul peak", f"{updates * m / 1e3:.0f} k run-updates",
+                  f"{flops / 1e9:.2f} GFLOP at {peak:.0f} GFLOP/s", f"{upd_peak_core_s / 3600:.2f}",
+                  f"{upd_peak_core_s / 3600 / cores:.2f}")
+    table.add_row("updates as implemented", f"{updates / 1e3:.0f} k {m}-run updates",
+                  f"{upd_s * 1e3:.0f} ms = {m * flops / upd_s / 1e9:.0f} GFLOP/s ({m * flops / upd_s / 1e9 / peak:.0%})",
+                  f"{upd_core_s / 3600:.2f}", f"{upd_core_s / 3600 / cores:.2f}")
+    table.add_row("floor (env + updates at peak)", "", "", f"{(env_core_s + upd_peak_core_s) / 3600:.2f}",
+                  f"{(env_core_s + upd_peak_core_s) / 3600 / cores:.2f}")
+    table.add_row("floor as implemented (env + updates)", "", "", f"{(env_core_s + upd_core_s) / 3600:.2f}",
+                  f"{(env_core_s + upd_core_s) / 3600 / cores:.2f}")
+    console.print(table)
+
+
 def paper_protocol(args, console: Console) -> None:
-    import time
+    import resource
 
     import torch
     from hydra import compose, initialize_config_dir
@@ -145,84 +232,118 @@ def paper_protocol(args, console: Console) -> None:
                "novice": human if human.exists() else script}
     substituted = [k for k, v in sources.items() if k != "script" and v == script]
     out = args.out / "paper"
+    shorten = [f"experiment.cycles={args.cycles}"] if args.cycles else []
+    shorten += [f"algo.offline_steps={args.offline_steps}"] if args.offline_steps is not None else []
     jobs = []
     with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
+        full = to_train_config(compose("config", overrides=["algo=ddpgbc", "task=NeedlePick", "experiment=paper",
+                                                            f"demos.path={script}", "run_dir=unused"]))
         for source, path in sources.items():
             for seed in args.paper_seeds:
                 demos = source if path != script else "script"
                 overrides = ["algo=ddpgbc", "task=NeedlePick", f"demos={demos}", "experiment=paper",
                              f"demos.path={path}", f"experiment.epochs={args.epochs}", f"seed={seed}",
                              f"run_dir={out / source / f'seed{seed}'}", "tensorboard=false", "progress=false",
-                             *args.overrides]
+                             "overwrite=true", *shorten, *args.overrides]
                 jobs.append(to_train_config(compose("config", overrides=overrides)))
         baseline = to_train_config(compose("config", overrides=[
             "algo=ddpgbc", "task=NeedlePick", "demos=script", "experiment=paper", f"demos.path={script}",
-            f"experiment.epochs={args.baseline_epochs}", "seed=0", f"run_dir={out / 'single'}",
-            "tensorboard=false", "progress=false", *args.overrides]))
-    cfg0 = jobs[0]
+            f"experiment.epochs={args.baseline_epochs}", "seed=0", f"run_dir={out / 'single'}", "overwrite=true",
+            "tensorboard=false", "progress=false", *shorten, *args.overrides]))
+    cfg0, m = jobs[0], len(jobs)
     hidden = list(cfg0.learner_params.get("hidden_sizes", [256, 256, 256]))
     flops = update_flops(19, 3, 5, hidden, int(cfg0.learner_params["batch_size"]),
                          int(cfg0.learner_params["demo_batch_size"]), bool(cfg0.learner_params["q_filter"]))
-    peak = matmul_peak_gflops(len(jobs), int(cfg0.learner_params["batch_size"]), hidden[0])
-    console.print(f"{len(jobs)} runs, {flops / 1e9:.2f} GFLOP per run-update, matmul peak {peak:.0f} GFLOP/s "
-                  f"(1 thread, ({len(jobs)}, 128, {hidden[0]}) x ({hidden[0]}, {hidden[0]}) bmm)"
+    peak = matmul_peak_gflops(m, int(cfg0.learner_params["batch_size"]), hidden[0])
+    console.print(f"{m} runs, {flops / 1e9:.2f} GFLOP per run-update, matmul peak {peak:.0f} GFLOP/s in CPU time "
+                  f"(1 thread, ({m}, 128, {hidden[0]}) x ({hidden[0]}, {hidden[0]}) bmm)"
                   + (f"; {', '.join(substituted)} demos replaced by script demos (no NeedlePick_human)" if substituted else ""))
-    peak_before = peak
-    t0 = time.perf_counter()
-    runs = train_batched(jobs, overlap=not args.no_overlap, n_workers=cfg0.schedule.n_envs, progress=True)
+    full_epochs, s_full = 100, full.schedule
+    if not args.no_floor:
+        compute_floor(console, full, m, flops, peak, full_epochs)
+
+    cpu0, kids0, t0 = time.process_time(), resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
+    import inspect
+
+    nice = {"worker_nice": args.worker_nice} if "worker_nice" in inspect.signature(train_batched).parameters else {}
+    runs = train_batched(jobs, overlap=not args.no_overlap, n_workers=cfg0.schedule.n_envs, progress=True, **nice)
     batched_wall = time.perf_counter() - t0
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    learner_cpu, envs_cpu = time.process_time() - cpu0, (kids.ru_utime + kids.ru_stime) - (kids0.ru_utime + kids0.ru_stime)
     t0 = time.perf_counter()
     single_rows = train(baseline) if args.baseline_epochs > 0 else []
     single_wall = time.perf_counter() - t0
 
-    # the machine is shared: take the better of two peak measurements, one before and one after the training
-    peak = max(peak_before, matmul_peak_gflops(len(jobs), int(cfg0.learner_params["batch_size"]), hidden[0]))
-    console.print(f"matmul peak: {peak_before:.0f} GFLOP/s before, {peak:.0f} GFLOP/s best (used below)")
-    rows = runs[0]
-    m = len(jobs)
-    table = Table(title=f"paper protocol, {m} runs as one batched ensemble (overlap={not args.no_overlap})")
-    for c in ("epoch", "collect s", "update s", "eval s", "epoch s", "env steps/s", "run-updates/s", "GFLOP/s",
-              "of peak", "success (min/median/max)"):
+    rows, s = runs[0], cfg0.schedule
+    scale = s_full.cycles / s.cycles   # a shortened epoch's collection and updates, scaled to the protocol's
+    table = Table(title=f"paper protocol, {m} runs as one batched ensemble (overlap={not args.no_overlap}, "
+                        f"worker nice {args.worker_nice}, "
+                        f"{s.cycles} of {s_full.cycles} cycles per epoch)")
+    for c in ("epoch", "collect s", "update s", "eval s", "epoch s", "learner CPU s", "envs CPU s", "cores busy",
+              "env steps/s", "run-updates/s", "GFLOP/s", "of peak", "success (min/median/max)"):
         table.add_column(c, justify="right")
     prev_wall = 0.0
-    epoch_walls = []
+    per_epoch = []
     for e, r in enumerate(rows):
         wall = r["wall_s"] - prev_wall
         prev_wall = r["wall_s"]
         succ = sorted(run[e]["success_rate"] for run in runs)
+        cpu_l, cpu_e = r.get("time_cpu_learner_s"), r.get("time_cpu_envs_s")
+        busy = "-" if cpu_l is None else f"{(cpu_l + cpu_e) / wall:.2f} of {os.cpu_count()}"
+        cpus = ("-", "-") if cpu_l is None else (f"{cpu_l:.1f}", f"{cpu_e:.1f}")
+        success = f"{succ[0]:.2f}/{statistics.median(succ):.2f}/{succ[-1]:.2f}"
         if r["epoch"] == 0:
-            table.add_row("0 (BC)", "-", "-", f"{r['time_eval_s']:.1f}", f"{wall:.1f}", "-", "-", "-", "-",
-                          f"{succ[0]:.2f}/{statistics.median(succ):.2f}/{succ[-1]:.2f}")
+            table.add_row("0 (BC)", "-", "-", f"{r['time_eval_s']:.1f}", f"{wall:.1f}", *cpus, busy, "-", "-", "-", "-",
+                          success)
             continue
-        epoch_walls.append(wall)
-        steps = m * (r["env_steps"] - rows[e - 1]["env_steps"]) + m * cfg0.schedule.eval_episodes * cfg0.schedule.max_episode_steps
+        steps = m * (r["env_steps"] - rows[e - 1]["env_steps"]) + m * s.eval_episodes * s.max_episode_steps
         updates = m * (r["updates"] - rows[e - 1]["updates"])
         gflops = updates * flops / r["time_update_s"] / 1e9 if r["time_update_s"] else float("nan")
+        per_epoch.append((r["time_collect_s"], r["time_update_s"], r["time_eval_s"], wall - r["time_collect_s"]
+                          - r["time_update_s"] - r["time_eval_s"]))
         table.add_row(str(r["epoch"]), f"{r['time_collect_s']:.1f}", f"{r['time_update_s']:.1f}",
-                      f"{r['time_eval_s']:.1f}", f"{wall:.1f}", f"{steps / wall:.0f}",
-                      f"{updates / r['time_update_s']:.0f}", f"{gflops:.0f}", f"{gflops / peak:.0%}",
-                      f"{succ[0]:.2f}/{statistics.median(succ):.2f}/{succ[-1]:.2f}")
+                      f"{r['time_eval_s']:.1f}", f"{wall:.1f}", *cpus, busy, f"{steps / wall:.0f}",
+                      f"{updates / r['time_update_s']:.0f}", f"{gflops:.0f}", f"{gflops / peak:.0%}", success)
     console.print(table)
-    full_epochs = 100
-    if epoch_walls:
-        per_epoch = statistics.median(epoch_walls)
-        batched_full = rows[0]["wall_s"] + full_epochs * per_epoch
-        console.print(f"batched: {batched_wall:.0f} s for {args.epochs} epochs; median epoch {per_epoch:.1f} s -> "
-                      f"EXTRAPOLATED full study ({m} runs x {full_epochs} epochs): {batched_full / 3600:.2f} h")
+    console.print(f"whole timed training ({len(rows)} epochs incl. epoch 0): {batched_wall:.0f} s wall, learner "
+                  f"{learner_cpu:.0f} CPU s, env workers {envs_cpu:.0f} CPU s -> {(learner_cpu + envs_cpu) / batched_wall:.2f} "
+                  f"of {os.cpu_count()} cores busy")
+    if per_epoch:
+        collect, update, evals, other = (statistics.median(x) for x in zip(*per_epoch))
+        epoch_full = scale * (collect + update) + evals + other
+        console.print(f"median epoch: collect {collect:.1f} s + update {update:.1f} s (x{scale:g} for the protocol's "
+                      f"{s_full.cycles} cycles) + eval {evals:.1f} s + other {other:.1f} s -> {epoch_full:.1f} s per "
+                      f"protocol epoch; EXTRAPOLATED full study ({m} runs x {full_epochs} epochs, offline phase "
+                      f"excluded): {full_epochs * epoch_full / 3600:.2f} h")
+    timed = [(r, p) for p, r in zip(rows, rows[1:]) if "time_cpu_envs_s" in r]
+    if timed:
+        # the cores' work per protocol epoch, from CPU seconds (valid on a shared machine, where wall time is not):
+        # env CPU per env step x the protocol's steps; learner CPU scaled with the updates
+        env_step_cpu = statistics.median([r["time_cpu_envs_s"] / (m * (r["env_steps"] - p["env_steps"])
+                                          + m * s.eval_episodes * s.max_episode_steps) for r, p in timed])
+        learner = statistics.median([r["time_cpu_learner_s"] for r, _ in timed]) * scale
+        envs = env_step_cpu * m * (s_full.cycles * s_full.episodes_per_cycle + s_full.eval_episodes) * s_full.max_episode_steps
+        cores = os.cpu_count() or 1
+        epoch_cpu = max(learner, (learner + envs) / cores)
+        console.print(f"CPU per protocol epoch: learner {learner:.0f} s (one thread), env workers {envs:.0f} s "
+                      f"({env_step_cpu * 1e3:.2f} ms per env step) -> {epoch_cpu:.0f} s per epoch with all {cores} cores "
+                      f"busy; PROJECTED full study on a quiet machine ({m} runs x {full_epochs} epochs): "
+                      f"{full_epochs * epoch_cpu / 3600:.2f} h")
     if single_rows:
         online = [r for r in single_rows if r["epoch"] > 0]
         walls = [b["wall_s"] - a["wall_s"] for a, b in zip(single_rows, single_rows[1:])]
-        per_epoch_single = statistics.median(walls)
-        single_full = m * (single_rows[0]["wall_s"] + full_epochs * per_epoch_single)
-        ups = statistics.median([r["updates"] - p["updates"] for p, r in zip(single_rows, single_rows[1:])]) / \
-            statistics.median([r["time_update_s"] for r in online])
-        console.print(f"baseline, single-run path (same run, {args.baseline_epochs} epoch(s) of 1 run): median epoch "
-                      f"{per_epoch_single:.1f} s, {ups:.0f} updates/s ({ups * flops / 1e9:.0f} GFLOP/s); "
-                      f"EXTRAPOLATED {m} runs x {full_epochs} epochs one after another: {single_full / 3600:.2f} h")
-        if epoch_walls:
-            console.print(f"batched / serial single runs, per epoch of all {m} runs: "
-                          f"{per_epoch / (m * per_epoch_single):.2f}x the time ({m * per_epoch_single / per_epoch:.1f}x faster)")
-    console.print(f"(the single-run baseline took {single_wall:.0f} s)")
+        c, u = statistics.median([r["time_collect_s"] for r in online]), statistics.median([r["time_update_s"] for r in online])
+        other = statistics.median(walls) - c - u
+        per_epoch_single = scale * (c + u) + other
+        ups = statistics.median([r["updates"] - p["updates"] for p, r in zip(single_rows, single_rows[1:])]) / u
+        console.print(f"baseline, single-run path (same run, {args.baseline_epochs} epoch(s) of 1 run): "
+                      f"{per_epoch_single:.1f} s per protocol epoch, {ups:.0f} updates/s ({ups * flops / 1e9:.0f} GFLOP/s); "
+                      f"EXTRAPOLATED {m} runs x {full_epochs} epochs one after another: "
+                      f"{m * full_epochs * per_epoch_single / 3600:.2f} h")
+        if per_epoch:
+            console.print(f"batched / serial single runs, per epoch of all {m} runs: {epoch_full / (m * per_epoch_single):.2f}x "
+                          f"the time ({m * per_epoch_single / epoch_full:.1f}x faster); the single-run baseline took "
+                          f"{single_wall:.0f} s")
 
 
 def main() -> None:
@@ -233,6 +354,12 @@ def main() -> None:
     parser.add_argument("--paper-seeds", type=int, nargs="*", default=[0, 1, 2, 3])
     parser.add_argument("--baseline-epochs", type=int, default=1, help="--protocol paper: single-run epochs to time")
     parser.add_argument("--no-overlap", action="store_true", help="--protocol paper: serial collect-then-update")
+    parser.add_argument("--cycles", type=int, default=None,
+                        help="--protocol paper: cycles per epoch (shorter epochs; collection and updates are scaled "
+                             "back to the protocol's 20 in the extrapolation)")
+    parser.add_argument("--offline-steps", type=int, default=None, help="--protocol paper: BC pre-training steps")
+    parser.add_argument("--worker-nice", type=int, default=5, help="--protocol paper: the env workers' niceness")
+    parser.add_argument("--no-floor", action="store_true", help="--protocol paper: skip the compute-floor table")
     parser.add_argument("--seeds", type=int, nargs="*", default=[0])
     parser.add_argument("--out", type=Path, default=REPO / "runs" / "train_speed")
     parser.add_argument("--demos", type=Path, default=REPO / "datasets" / "NeedlePick_script")

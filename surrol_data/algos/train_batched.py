@@ -8,17 +8,19 @@ The same run as :func:`surrol_data.algos.train.train`, for M runs at once, read 
    ``checkpoint.pt`` — the checkpoint is the single run's format, written from the member's slice;
 2. offline phase: BC pre-training of all actors in one batched step each (and the optional critic warm-up);
 3. online epochs: every cycle collects every member's ``episodes_per_cycle`` episodes at once in an
-   :class:`~surrol_data.algos.env_pool.EnvPool` (M × episodes_per_cycle envs on ``n_workers`` processes),
-   one batched actor call per env step for all members. With ``overlap`` the previous cycle's updates run
-   in the parent *while the workers step the envs* (spread evenly over the episode's steps), so the two
-   cores are busy with envs and updates at the same time; the cost is a policy one cycle staler than the
-   serial schedule's (off-policy learning does not care) — ``overlap=False`` gives the serial schedule;
+   :class:`~surrol_data.algos.env_pool.EnvPool` (M × episodes_per_cycle envs on ``n_workers`` processes). The
+   workers play whole episodes on their own, from a snapshot of the actors and the exploration noise drawn
+   here from each member's generator, so there is no round trip per env step. With ``overlap`` the previous
+   cycle's updates run in this process *while the workers play*, so the two cores are busy with envs and
+   updates at the same time; the cost is a policy one cycle staler than the serial schedule's (off-policy
+   learning does not care) — ``overlap=False`` gives the serial schedule;
 4. evaluation of all members through the same pool, deterministic, on the single run's evaluation seeds,
    scored by the same proficiency metrics; then per member one metrics row and one checkpoint.
 
 A member's training episodes use the single run's seeds (``seed·1e6 + episode``) and the member draws its
-batches and exploration noise from its own generator in the single run's order, so a member reproduces the
-single run up to floating-point rounding of the batched kernels (and, with ``overlap``, the policy lag).
+batches and exploration noise from its own generator in the single run's order (with ``overlap`` a cycle's
+noise is drawn before, not after, the previous cycle's batches), so a member reproduces the single run up to
+floating-point rounding of the batched kernels (and, with ``overlap``, the policy lag and that draw order).
 
 Exact resume after SIGKILL: member checkpoints are written to temporary files first and then moved into
 place one by one, keeping the one they replace as ``checkpoint.prev.pt``; a kill between two moves leaves
@@ -44,7 +46,7 @@ from surrol_data.algos.env_pool import EnvPool
 from surrol_data.algos.replay import EpisodeReplay, rng_from_tensor, rng_state_tensor
 from surrol_data.algos.train import (CHECKPOINT_FORMAT, EVAL_SEED_BASE, TRAIN_SEED_STRIDE, RunLog, TrainConfig,
                                      _check, _config_json, _write_json, claim_run_dir, make_env)
-from surrol_data.datasets.trajectory import TrajectoryBuilder
+from surrol_data.datasets.trajectory import Trajectory
 from surrol_data.evaluation.metrics import summarize, trajectory_proficiency
 
 PREV = "checkpoint.prev.pt"
@@ -96,8 +98,12 @@ class _Member:
 
 
 def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int = 2,
-                  progress: bool = True) -> list[list[dict]]:
-    """Train (or resume) the runs ``cfgs`` as one ensemble; returns every member's per-epoch rows."""
+                  progress: bool = True, worker_nice: int = 5) -> list[list[dict]]:
+    """Train (or resume) the runs ``cfgs`` as one ensemble; returns every member's per-epoch rows.
+
+    ``worker_nice``: the env workers' niceness. During a cycle the learner's updates are one thread the cycle
+    waits for, while the workers' episodes can use whatever CPU is left; with equal priority the scheduler
+    gives the learner only its share of the cores (2/3 of one with two workers on two cores)."""
     _check_members(cfgs)
     for cfg in cfgs:   # as single runs: an earlier run's folder is refused unless resumed or overwritten
         claim_run_dir(Path(cfg.run_dir), resume=cfg.resume, overwrite=cfg.overwrite)
@@ -111,11 +117,14 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
     act_dim = probe.action_space.shape[0]
     reward_fn = probe.unwrapped.compute_reward
     learner = EnsembleDDPG(obs_dim, goal_dim, act_dim, _learner_config(first), [c.seed for c in cfgs])
-    members = []
+    members, demo_sets = [], {}
     for cfg in cfgs:
         replay = EpisodeReplay(s.buffer_episodes, s.max_episode_steps, obs_dim, goal_dim, act_dim, reward_fn,
                                s.her_k, seed=cfg.seed)
-        trajs, eps = load_demos(cfg.demos, cfg.env_id)
+        key = json.dumps(_config_json(cfg)["demos"], sort_keys=True, default=str)
+        if key not in demo_sets:  # the seeds of one demo source share its demo set: read it once
+            demo_sets[key] = load_demos(cfg.demos, cfg.env_id)
+        trajs, eps = demo_sets[key]
         demo_buffer = EpisodeReplay(len(trajs), s.max_episode_steps, obs_dim, goal_dim, act_dim, reward_fn,
                                     s.her_k, seed=cfg.seed + 1) if trajs else None
         member = _Member(cfg, replay, demo_buffer, eps)
@@ -141,24 +150,41 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
     probe.close()
 
     per_member_envs = s.episodes_per_cycle
-    pool = EnvPool(first.env_id, s.max_episode_steps, len(members) * per_member_envs, n_workers)
+    pool = EnvPool(first.env_id, s.max_episode_steps, len(members) * per_member_envs, n_workers, worker_nice)
     demo_buffers = [m.demo_buffer for m in members] if members[0].demo_buffer is not None else None
     replays = [m.replay for m in members]
+
+    cpu = {"learner": time.process_time(), "envs": pool.worker_cpu_seconds()}
 
     def finish_epoch(extras: list[dict], started: float) -> None:
         t_eval = time.perf_counter()
         scores = _evaluate(pool, learner, s.eval_episodes, s.max_episode_steps, per_member_envs)
         eval_s = time.perf_counter() - t_eval
         elapsed = time.perf_counter() - started
+        # CPU seconds of this process (learner) and of the env workers in the epoch: with the wall time they
+        # say how busy the cores were, which a wall clock on a shared machine cannot
+        now = {"learner": time.process_time(), "envs": pool.worker_cpu_seconds()}
+        used = {k: now[k] - cpu[k] for k in now}
+        cpu.update(now)
         for i, m in enumerate(members):
             row = {"epoch": m.state["epoch"], "env_steps": m.state["env_steps"], "episodes": m.state["episodes"],
                    "updates": m.state["updates"], **scores[i], **extras[i]}
             row["time_eval_s"] = round(eval_s, 3)
+            row["time_cpu_learner_s"] = round(used["learner"], 3)
+            row["time_cpu_envs_s"] = round(used["envs"], 3)
             m.state["wall_s"] += elapsed  # the ensemble's epoch: every member waited for all of it
             row["wall_s"] = round(m.state["wall_s"], 3)
             m.log.append(row)
             learner.policy(i).save(m.run_dir / "policy.pt")
-        _save_all(members, learner)
+        # the checkpoints' contents are taken now; writing them (hundreds of MB once the buffers fill) waits
+        # for the next epoch's first rollout, when the learner has no updates to run
+        pending_save.append(_checkpoints(members, learner))
+
+    pending_save: list[list[dict]] = []
+
+    def write_checkpoints() -> None:
+        while pending_save:
+            _write_checkpoints(members, pending_save.pop(0))
 
     bar = tqdm(total=s.epochs, initial=members[0].state["epoch"], unit="epoch", disable=not progress,
                desc=f"train {len(members)} runs {first.env_id.split('/')[-1]}")
@@ -183,11 +209,13 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
             t0 = time.perf_counter()
             for m in members:
                 m.state["epoch"] += 1
-            extras = _online_epoch(members, learner, pool, replays, demo_buffers, overlap)
+            extras = _online_epoch(members, learner, pool, replays, demo_buffers, overlap, write_checkpoints)
             finish_epoch(extras, t0)
             bar.update(1)
             bar.set_postfix(success=" ".join(f"{m.rows[-1]['success_rate']:.2f}" for m in members), refresh=False)
+        write_checkpoints()
     finally:
+        write_checkpoints()   # an interrupted epoch leaves the last finished one's checkpoints, complete
         bar.close()
         pool.close()
         for m in members:
@@ -199,7 +227,7 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
 
 
 def _online_epoch(members: list[_Member], learner: EnsembleDDPG, pool: EnvPool, replays, demo_buffers,
-                  overlap: bool) -> list[dict]:
+                  overlap: bool, while_first_rollout) -> list[dict]:
     s = members[0].cfg.schedule
     per_member = s.episodes_per_cycle
     train_success = [[] for _ in members]
@@ -221,16 +249,19 @@ def _online_epoch(members: list[_Member], learner: EnsembleDDPG, pool: EnvPool, 
         update_before = timing["update"]
         seeds = [m.cfg.seed * TRAIN_SEED_STRIDE + m.state["episodes"] + j for m in members for j in range(per_member)]
         random_actions = members[0].state["env_steps"] < s.warmup_steps
-        episodes = _collect(pool, learner, members, seeds, s.max_episode_steps, random_actions,
-                            run_updates if overlap else None, owed if overlap else 0)
-        if overlap:
+        _start_collect(pool, learner, members, seeds, s.max_episode_steps, random_actions)
+        while_first_rollout()
+        if overlap:   # the workers play the cycle's episodes while the last cycle's updates run here
+            run_updates(owed)
             owed = 0
+        episodes = pool.rollout_wait()
         for i, m in enumerate(members):
             for j in range(per_member):
-                o, ag, g, a, success = (x[i * per_member + j] if x is not None else None for x in episodes)
-                slot = m.replay.add_episode(o, ag, g, a)
+                e = i * per_member + j
+                slot = m.replay.add_episode(episodes["observation"][0, e], episodes["achieved_goal"][0, e],
+                                            episodes["desired_goal"][0, e, :-1], episodes["action"][0, e])
                 learner.inputs[i].update(*m.replay.sample_episode_for_stats(slot))
-                train_success[i].append(float(success))
+                train_success[i].append(float(episodes["success"][0, e, -1]))
             m.state["episodes"] += per_member
             m.state["env_steps"] += per_member * s.max_episode_steps
         timing["collect"] += time.perf_counter() - t0 - (timing["update"] - update_before)
@@ -251,65 +282,51 @@ def _online_epoch(members: list[_Member], learner: EnsembleDDPG, pool: EnvPool, 
     return out
 
 
-def _collect(pool: EnvPool, learner: EnsembleDDPG, members: list[_Member], seeds: list[int], steps: int,
-             random_actions: bool, run_updates, n_updates: int):
-    """One episode in every env of the pool (member-major), running ``n_updates`` updates spread over the steps
-    while the workers step. Returns per-env arrays: obs (E, T+1, ·), ag (E, T+1, ·), g (E, T, ·), actions
-    (E, T, ·) and the last-step success (E,)."""
+def _start_collect(pool: EnvPool, learner: EnsembleDDPG, members: list[_Member], seeds: list[int], steps: int,
+                   random_actions: bool) -> None:
+    """Start one training episode in every env of the pool (member-major). Every member's exploration is drawn
+    here from its own generator, in the order its single run draws it, so the workers draw nothing."""
     per_member = len(seeds) // len(members)
-    obs, _ = pool.reset(seeds)
-    o, ag, g, acts = [obs["observation"]], [obs["achieved_goal"]], [], []
-    info = {}
-    done_updates = 0
-    for t in range(steps):
-        if random_actions:
-            action = np.concatenate([m.collect_rng.uniform(-1.0, 1.0, (per_member, learner.act_dim)).astype(np.float32)
-                                     for m in members])
-        else:
-            per = [{k: v[i * per_member:(i + 1) * per_member] for k, v in obs.items()} for i in range(len(members))]
-            action = np.concatenate(learner.act(per, explore=True))
-        g.append(obs["desired_goal"])
-        pool.step_async(action)
-        if run_updates is not None:
-            due = (t + 1) * n_updates // steps - done_updates
-            if due:
-                run_updates(due)
-                done_updates += due
-        obs, _, info = pool.step_wait()
-        o.append(obs["observation"])
-        ag.append(obs["achieved_goal"])
-        acts.append(action)
-    swap = lambda xs: np.stack(xs, 1)  # (T, E, ·) -> (E, T, ·)
-    return swap(o), swap(ag), swap(g), swap(acts), np.asarray(info["is_success"], float)
+    member_of_env = np.repeat(np.arange(len(members)), per_member)
+    if random_actions:   # warm-up: uniform actions from the member's collection generator, no policy
+        random = np.concatenate([m.collect_rng.uniform(-1.0, 1.0, (steps, per_member, learner.act_dim)).astype(np.float32)
+                                 for m in members], 1)
+        explore = {"noise": None, "replace": np.ones(random.shape[:2], bool).T, "random": random.swapaxes(0, 1)}
+        pool.rollout_async(seeds, None, member_of_env, explore)
+        return
+    parts = [learner.exploration(i, steps, per_member) for i in range(len(members))]
+    explore = {k: (np.concatenate([p[k] for p in parts], 1).swapaxes(0, 1) if parts[0][k] is not None else None)
+               for k in parts[0]}   # (T, E, ...) -> (E, T, ...)
+    pool.rollout_async(seeds, learner.snapshot(), member_of_env, explore)
 
 
 def _evaluate(pool: EnvPool, learner: EnsembleDDPG, episodes: int, steps: int, per_member: int) -> list[dict]:
-    """Every member's deterministic evaluation on the single run's seeds, through the pool."""
+    """Every member's deterministic evaluation on the single run's seeds, through the pool (one message per
+    worker for all rounds), scored by the proficiency metrics."""
     n_members = len(learner)
-    trajectories = [[] for _ in range(n_members)]
     rounds = -(-episodes // per_member)
+    seeds = [[EVAL_SEED_BASE + r * per_member + j for _ in range(n_members) for j in range(per_member)]
+             for r in range(rounds)]
+    pool.rollout_async(seeds, learner.snapshot(), np.repeat(np.arange(n_members), per_member))
+    out = pool.rollout_wait()
+    trajectories = [[] for _ in range(n_members)]
     for r in range(rounds):
-        seeds = [EVAL_SEED_BASE + r * per_member + j for _ in range(n_members) for j in range(per_member)]
-        obs, info = pool.reset(seeds)
-        builders = [TrajectoryBuilder({k: v[e] for k, v in obs.items()}, info["tip_position"][e], info["jaw_angle"][e])
-                    for e in range(len(seeds))]
-        for _ in range(steps):
-            per = [{k: v[i * per_member:(i + 1) * per_member] for k, v in obs.items()} for i in range(n_members)]
-            action = np.clip(np.concatenate(learner.act(per, explore=False)), -1.0, 1.0)
-            obs, reward, info = pool.step(action)
-            for e, b in enumerate(builders):
-                b.add(action[e], {k: v[e] for k, v in obs.items()}, reward[e], bool(info["is_success"][e]), False,
-                      info["tip_position"][e], info["jaw_angle"][e])
-        for e, b in enumerate(builders):
+        for e in range(n_members * per_member):
             i, j = divmod(e, per_member)
-            if r * per_member + j < episodes:
-                trajectories[i].append(b.build())
-    out = []
+            if r * per_member + j >= episodes:
+                continue
+            tip = out["tip_position"][r, e]
+            trajectories[i].append(Trajectory(
+                observation=out["observation"][r, e], achieved_goal=out["achieved_goal"][r, e],
+                desired_goal=out["desired_goal"][r, e], action=out["action"][r, e], reward=out["reward"][r, e],
+                success=out["success"][r, e], terminated=np.zeros(steps, bool),
+                tip_position=tip.reshape(len(tip), -1, 3), jaw_angle=out["jaw_angle"][r, e].reshape(len(tip), -1)))
+    scores = []
     for trajs in trajectories:
         sm = summarize([trajectory_proficiency(t) for t in trajs])
-        out.append({"success_rate": sm["final_success_rate"], "any_success_rate": sm["success_rate"],
-                    "steps_to_complete": sm["mean_steps_to_success"], "economy_of_motion_cm": sm["mean_path_length_cm"]})
-    return out
+        scores.append({"success_rate": sm["final_success_rate"], "any_success_rate": sm["success_rate"],
+                       "steps_to_complete": sm["mean_steps_to_success"], "economy_of_motion_cm": sm["mean_path_length_cm"]})
+    return scores
 
 
 # ---------------------------------------------------------------------- checkpoints, one per member
@@ -322,11 +339,16 @@ def _member_checkpoint(m: _Member, learner: EnsembleDDPG, i: int) -> dict:
     return ckpt
 
 
-def _save_all(members: list[_Member], learner: EnsembleDDPG) -> None:
+def _checkpoints(members: list[_Member], learner: EnsembleDDPG) -> list[dict]:
+    """Every member's checkpoint as of now (copies: training may go on before they are written)."""
+    return [_member_checkpoint(m, learner, i) for i, m in enumerate(members)]
+
+
+def _write_checkpoints(members: list[_Member], ckpts: list[dict]) -> None:
     tmps = []
-    for i, m in enumerate(members):
+    for m, ckpt in zip(members, ckpts):
         tmp = m.run_dir / "checkpoint.tmp"
-        torch.save(_member_checkpoint(m, learner, i), tmp)
+        torch.save(ckpt, tmp)
         tmps.append(tmp)
     for m, tmp in zip(members, tmps):
         current = m.run_dir / "checkpoint.pt"
