@@ -18,10 +18,11 @@ the MLCP solvers, and the gauze as a rigid body (maximal coordinates). A block p
 alone (no tool) does not sink even at 60 N: the press-in came from the arm, whose position motors pushed with
 up to 60 N·m (and, under the adaptive sub-steps, up to 8× more: see psm_env._set_time_step) through heavy links.
 
-What removed it is the dVRK's own arrangement: a light, gravity-compensated arm whose joint motors are force
-limited, so a tool stalls against a rigid obstacle instead of driving through it (PegTransfer pokes, 5 episodes:
-object↔static 7.7 mm at the old forces → 0.6 mm; bang-bang PegTransfer 0.1 mm), while unit-box actions are
-still tracked within 2.7 % in free space.
+What removed most of it is the dVRK's own arrangement: a light, gravity-compensated arm whose joint motors are
+force limited, so a tool stalls against a rigid obstacle instead of driving through it (benchmarks/
+physics_realism.py, 10 episodes: PegTransfer pokes 8.6 → 1.6 mm, none left inside instead of 21 of 30;
+bang-bang PegTransfer 0.2 mm), while unit-box actions are still tracked within 2.7 % in free space. The limits
+that would keep every poke under 1 mm leave BiPegTransfer's oracle at 91 % (see PSM_MAX_FORCE).
 """
 
 from __future__ import annotations
@@ -54,7 +55,7 @@ PSM_VELOCITY_GAIN = 1.0
 # board; at (0.5, 0.5, 0.5) 0.3 mm, but the tool could not drag the MatchBoardPanel drawer (0 of 3); at (1, 1, 0.5)
 # 0.6 mm, but BiPegTransfer's oracle, carrying the block 3 mm over the peg tops, caught it on a peg in 9 of 100
 # episodes (91 %; at (1.5, 1.5, 0.75) it still failed 3). At (2, 2, 1) BiPegTransfer's oracle is back to
-# 99 of 100 and the poked block sinks 2.0 mm (the needle under a poke or swipe 1.3–1.5 mm), tracking 2.7 %. The
+# 99 of 100 and a poked or swiped block sinks 1.6–2.3 mm (a needle 1.3–1.5 mm), tracking 2.7 %. The
 # wrist's 0.1 pushes ~2 N at the blade ends, ~70× a blade's weight; the jaws squeeze with JAW_MAX_FORCE. These
 # limits only work with light, gravity-compensated links (below): at 3× the link mass below, forces (1, 1, 1)
 # tracked a unit action with 19 % error.
