@@ -305,9 +305,9 @@ def paper_protocol(args, console: Console) -> None:
                       f"{r['time_eval_s']:.1f}", f"{wall:.1f}", *cpus, busy, f"{steps / wall:.0f}",
                       f"{updates / r['time_update_s']:.0f}", f"{gflops:.0f}", f"{gflops / peak:.0%}", success)
     console.print(table)
-    console.print(f"whole timed training ({len(rows)} epochs incl. epoch 0): {batched_wall:.0f} s wall, learner "
-                  f"{learner_cpu:.0f} CPU s, env workers {envs_cpu:.0f} CPU s -> {(learner_cpu + envs_cpu) / batched_wall:.2f} "
-                  f"of {os.cpu_count()} cores busy")
+    console.print(f"whole timed training (setup and {len(rows)} epochs incl. epoch 0): {batched_wall:.0f} s wall, learner "
+                  f"{learner_cpu:.0f} CPU s, env workers {envs_cpu:.0f} CPU s (as reaped) -> "
+                  f"{(learner_cpu + envs_cpu) / batched_wall:.2f} of {os.cpu_count()} cores busy")
     if per_epoch:
         collect, update, evals, other = (statistics.median(x) for x in zip(*per_epoch))
         epoch_full = scale * (collect + update) + evals + other

@@ -261,4 +261,5 @@ class EnvPool:
             proc.join(timeout=5)
             if proc.is_alive():
                 proc.terminate()
+                proc.join(timeout=5)   # reaped, so its CPU time counts in the parent's RUSAGE_CHILDREN
         self._conns, self._procs = [], []
