@@ -324,11 +324,19 @@ def paper_protocol(args, console: Console) -> None:
         learner = statistics.median([r["time_cpu_learner_s"] for r, _ in timed]) * scale
         envs = env_step_cpu * m * (s_full.cycles * s_full.episodes_per_cycle + s_full.eval_episodes) * s_full.max_episode_steps
         cores = os.cpu_count() or 1
-        epoch_cpu = max(learner, (learner + envs) / cores)
+        # an epoch's phases on a quiet machine: cycles 1..C-1 overlap the learner (one thread, the workers
+        # niced) with the workers' episodes; the last cycle's updates run alone; evaluation is envs only
+        c = s_full.cycles
+        env_eval = env_step_cpu * m * s_full.eval_episodes * s_full.max_episode_steps
+        env_train = envs - env_eval
+        overlapped = max(learner * (c - 1) / c, (learner * (c - 1) / c + env_train * (c - 1) / c) / cores)
+        epoch_phases = overlapped + learner / c + env_train / c / cores + env_eval / cores
+        epoch_ideal = max(learner, (learner + envs) / cores)
         console.print(f"CPU per protocol epoch: learner {learner:.0f} s (one thread), env workers {envs:.0f} s "
-                      f"({env_step_cpu * 1e3:.2f} ms per env step) -> {epoch_cpu:.0f} s per epoch with all {cores} cores "
-                      f"busy; PROJECTED full study on a quiet machine ({m} runs x {full_epochs} epochs): "
-                      f"{full_epochs * epoch_cpu / 3600:.2f} h")
+                      f"({env_step_cpu * 1e3:.2f} ms per env step). PROJECTED full study on a quiet machine "
+                      f"({m} runs x {full_epochs} epochs): {full_epochs * epoch_phases / 3600:.2f} h with this path's "
+                      f"phases ({epoch_phases:.0f} s per epoch); {full_epochs * epoch_ideal / 3600:.2f} h if all "
+                      f"{cores} cores were busy all the time")
     if single_rows:
         online = [r for r in single_rows if r["epoch"] > 0]
         walls = [b["wall_s"] - a["wall_s"] for a, b in zip(single_rows, single_rows[1:])]
