@@ -4,10 +4,13 @@ Usage: ``uv run python benchmarks/operator_tasks.py [--episodes 5] [--tasks Need
 
 For each task and skill (``expert``, ``novice``) it records ``episodes`` attempts with
 ``collect_haptic(device="operator", keep_failures=True)`` (seeds 0, 1, …; the session's default horizon:
-3× the registered one in time, twice that for two-arm tasks; or ``--max-steps``) into a temporary dataset and reads success, steps to
-success and tool path back from the episodes' provenance — the numbers ``surrol-data info`` shows. The
-script oracle's row (same seeds, registered horizon) is the reference. Steps and path are mean ± sd over the
-successful episodes. Everything is seeded, so a task's rows do not depend on which other tasks run.
+3× the registered one in time, or a task's ``HUMAN_PACE_STEPS``, twice that for two-arm tasks; or ``--max-steps``)
+into a temporary dataset and reads success, steps to success and tool path back from the episodes' provenance —
+the numbers ``surrol-data info`` shows — and where skill shows from the recorded episodes (the proficiency
+metrics of ``surrol-data assess``): failed grasps, clutch uses and idle time per episode. The script oracle's row
+(same seeds, registered horizon) is the reference (its skill columns are left empty: it runs on after success). Steps and path are mean ± sd over the successful episodes; the
+per-episode counts are means over all episodes. Everything is seeded, so a task's rows do not depend on which
+other tasks run.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from rich.progress import track
 from rich.table import Table
 
 import surrol_data.envs
-from surrol_data.collect.haptic_source import collect_haptic
+from surrol_data.collect.haptic_source import _human_horizon, collect_haptic
 from surrol_data.datasets.reader import DatasetReader
 from surrol_data.evaluation.metrics import trajectory_proficiency
 from surrol_data.evaluation.rollout import ORACLE, rollout
@@ -31,32 +34,50 @@ from surrol_data.evaluation.rollout import ORACLE, rollout
 SKILLS = ("expert", "novice")
 
 
-def _summary(success: np.ndarray, steps: np.ndarray, path: np.ndarray) -> dict:
+COLUMNS = ("task", "source", "horizon", "success", "steps to success", "path (cm)", "failed grasps / ep",
+           "clutch / ep", "idle (s) / ep")
+
+
+def _summary(success: np.ndarray, steps: np.ndarray, path: np.ndarray, scores: list | None = None) -> dict:
     ok = success.astype(bool)
 
     def stat(values):
         v = values[ok]
         return f"{v.mean():.1f} ± {v.std():.1f}" if len(v) else "–"
 
-    return {"success": f"{ok.sum()}/{len(ok)}", "steps": stat(steps), "path": stat(path)}
+    def per_episode(field, digits=1):
+        values = np.array([getattr(s, field) for s in scores], np.float64) if scores else np.array([])
+        values = values[np.isfinite(values)]
+        return f"{values.mean():.{digits}f}" if len(values) else "–"
+
+    return {"success": f"{ok.sum()}/{len(ok)}", "steps to success": stat(steps), "path (cm)": stat(path),
+            "failed grasps / ep": per_episode("failed_grasps"), "clutch / ep": per_episode("clutch_uses"),
+            "idle (s) / ep": per_episode("idle_time_s")}
 
 
 def oracle_row(task: str, episodes: int) -> dict:
     env = gym.make(surrol_data.envs.env_id(task))
     try:
         scores = [trajectory_proficiency(rollout(env, ORACLE, seed)) for seed in range(episodes)]
+        horizon = env.spec.max_episode_steps
     finally:
         env.close()
-    return _summary(np.array([s.success for s in scores]), np.array([s.steps_to_success for s in scores], float),
-                    np.array([s.path_length_cm for s in scores]))
+    return {"horizon": str(horizon), **_summary(np.array([s.success for s in scores]),
+                                                np.array([s.steps_to_success for s in scores], float),
+                                                np.array([s.path_length_cm for s in scores]))}
 
 
 def operator_row(task: str, skill: str, episodes: int, workdir: Path, max_steps: int | None = None) -> dict:
     out = workdir / f"{task}_{skill}"
     collect_haptic(task, episodes, out, device="operator", skill=skill, operator_id=f"{skill}-1", seed=0,
                    keep_failures=True, max_attempts=episodes, progress=False, max_steps=max_steps)
-    ep = DatasetReader(out).episodes
-    return _summary(ep["success"].to_numpy(), ep["steps_to_success"].to_numpy(float), ep["path_length_cm"].to_numpy())
+    reader = DatasetReader(out)
+    ep = reader.episodes
+    scores = [trajectory_proficiency(reader.trajectory(i)) for i in range(len(ep))]
+    eid = surrol_data.envs.env_id(task)
+    horizon = max_steps or _human_horizon(eid, gym.spec(eid).max_episode_steps)
+    return {"horizon": str(horizon), **_summary(ep["success"].to_numpy(), ep["steps_to_success"].to_numpy(float),
+                                                ep["path_length_cm"].to_numpy(), scores)}
 
 
 def main() -> None:
@@ -75,14 +96,14 @@ def main() -> None:
                    else operator_row(task, who, args.episodes, Path(tmp), args.max_steps))
             rows.append({"task": task, "source": who, **row})
     table = Table(title=f"Simulated operators through the haptic path ({args.episodes} episodes each)")
-    for col in ("task", "source", "success", "steps to success", "path (cm)"):
+    for col in COLUMNS:
         table.add_column(col)
     for r in rows:
-        table.add_row(r["task"], r["source"], r["success"], r["steps"], r["path"])
+        table.add_row(*(r[c] for c in COLUMNS))
     Console().print(table)
     if args.out:
-        lines = ["| task | source | success | steps to success | path (cm) |", "|---|---|---|---|---|"]
-        lines += [f"| {r['task']} | {r['source']} | {r['success']} | {r['steps']} | {r['path']} |" for r in rows]
+        lines = ["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
+        lines += ["| " + " | ".join(r[c] for c in COLUMNS) + " |" for r in rows]
         args.out.write_text("\n".join(lines) + "\n")
 
 

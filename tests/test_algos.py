@@ -145,6 +145,7 @@ def test_ddpg_update_uses_demo_batches_only_with_a_bc_weight():
 
 
 def test_sac_log_prob_matches_a_monte_carlo_density_and_policy_export_is_tanh_mu():
+    torch.manual_seed(0)   # the networks' initialisation draws from torch's global generator
     agent = SAC(7, 3, 5, SACConfig(hidden_sizes=(32,)))
     o, g = torch.randn(1, 7).repeat(4000, 1), torch.randn(1, 3).repeat(4000, 1)
     a, logp = agent.actor(o, g, generator=torch.Generator().manual_seed(0))
@@ -154,7 +155,10 @@ def test_sac_log_prob_matches_a_monte_carlo_density_and_policy_export_is_tanh_mu
     log_std = -4 + 3 * (torch.tanh(raw) + 1)
     u = torch.atanh(a.clamp(-1 + 1e-6, 1 - 1e-6))
     ref = torch.distributions.Normal(mu, log_std.exp()).log_prob(u).sum(-1) - torch.log(1 - a.pow(2) + 1e-12).sum(-1)
-    assert torch.allclose(logp, ref, atol=2e-2)
+    # where tanh saturates in float32, atanh(a) no longer recovers the pre-squash sample: compare elsewhere
+    inside = a.abs().amax(-1) < 0.999
+    assert inside.float().mean() > 0.5
+    assert torch.allclose(logp[inside], ref[inside], atol=2e-2)
     policy = agent.policy()
     obs = {"observation": np.random.default_rng(0).normal(size=(8, 7)).astype(np.float32),
            "desired_goal": np.zeros((8, 3), np.float32)}
@@ -300,9 +304,9 @@ def test_hydra_configs_compose_into_train_configs(tmp_path, monkeypatch):
         assert paper.schedule.max_episode_steps == 150 and paper.schedule.episodes_per_cycle * paper.schedule.cycles == 40
         assert paper.learner == "sac" and paper.schedule.her_k == 4 and paper.demos.path is None
         warm = to_train_config(compose("config", ["algo=ddpgbc_warm"]))
-        assert warm.learner_params["q_normalize"] and warm.learner_params["critic_pretrain_steps"] > 0
+        assert warm.learner_params["filtered_bc"] and warm.learner_params["critic_pretrain_steps"] > 0
         assert warm.run_dir.endswith("ddpgbc_warm/script/seed0")
         # the paper-faithful default has none of the warm start
-        assert not {"q_normalize", "critic_pretrain_steps", "actor_hold_updates"} & set(expert.learner_params)
+        assert not {"filtered_bc", "freeze_normalizer", "critic_pretrain_steps", "actor_hold_updates"} & set(expert.learner_params)
         reference = to_train_config(compose("config", ["experiment=reference", "algo=bc"]))
         assert reference.schedule.max_episode_steps == 50 and not reference.schedule.online

@@ -11,7 +11,7 @@ import pytest
 
 import surrol_data.envs  # noqa: F401  (registers the ids)
 from surrol_data.collect.haptic_source import _human_horizon, collect_haptic
-from surrol_data.collect.mapping import MappingSettings
+from surrol_data.collect.mapping import ActionMapper, MappingSettings
 from surrol_data.collect.operator import SimulatedOperator
 from surrol_data.datasets.reader import DatasetReader
 from surrol_data.datasets.validate import validate_dataset
@@ -78,15 +78,84 @@ def test_team_waits_for_the_other_hand():
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("skill", ["expert", "novice"])
 @pytest.mark.parametrize("task", list(surrol_data.envs.TASKS))
-def test_expert_and_novice_succeed_on_every_task(tmp_path, task, skill):
-    """Five attempts per task and skill: experts at the session's default horizon, novices (who take about
-    twice as long, see the README's operator table) at twice it. Experts succeed in most attempts; novices in
-    some (on the two-arm tasks a novice identity may fail 3–4 of 5 hand-overs)."""
-    eid = surrol_data.envs.env_id(task)
-    horizon = _human_horizon(eid, gym.spec(eid).max_episode_steps) * (2 if skill == "novice" else 1)
-    res = _collect(task, tmp_path / "ds", skill=skill, episodes=5, keep_failures=True, max_attempts=5,
-                   max_steps=horizon)
-    assert res.attempts == 5
-    assert res.attempts - res.failures >= (4 if skill == "expert" else 1), (task, skill, res.failures)
+def test_expert_and_novice_succeed_on_every_task(tmp_path, task):
+    """The README's operator table (``benchmarks/operator_tasks.py --episodes 10``, the same identities and seeds):
+    ten attempts per skill at the session's default horizon; experts succeed in at least 8, novices in at least 5,
+    and novices take longer (ActiveTrack succeeds at its first step whoever holds the stylus)."""
+    steps = {}
+    for skill, at_least in (("expert", 8), ("novice", 5)):
+        out = tmp_path / skill
+        res = collect_haptic(task, 10, out, device="operator", skill=skill, operator_id=f"{skill}-1", seed=0,
+                             keep_failures=True, max_attempts=10, progress=False)
+        assert res.attempts == 10
+        assert res.attempts - res.failures >= at_least, (task, skill, res.failures)
+        ep = DatasetReader(out).episodes
+        steps[skill] = ep.loc[ep["success"].astype(bool), "steps_to_success"].astype(float).mean()
+    if task != "ActiveTrack":
+        assert steps["novice"] > steps["expert"], steps
+
+
+def _episode(env, operator, seed, horizon):
+    """The haptic session's per-step loop for one simulated operator on a single-PSM task; ends on success."""
+    mapper = ActionMapper(operator.mapping)
+    obs, info = env.reset(seed=seed)
+    for _ in range(horizon):
+        operator.observe(obs, info)
+        obs, _, terminated, truncated, info = env.step(mapper(operator.read()).arm)
+        if info["is_success"] or terminated or truncated:
+            break
+    return bool(info["is_success"])
+
+
+def test_placing_step_aims_the_block_not_the_tool():
+    # MatchBoard's plan carries the block over its groove and lowers it (the placing step) before opening: a
+    # person turns the block until it looks aligned with the groove, i.e. aims for the block's yaw 0 whatever
+    # angle the jaws took it at.
+    env = gym.make("SurRoL/MatchBoard-v0")
+    try:
+        op = SimulatedOperator(env.unwrapped, "expert", "e", MappingSettings(), 0)
+        obs, info = env.reset(seed=3)
+        op.observe(obs, info)
+        placing = [i for i, g in enumerate(op._plan) if g.placing]
+        assert len(placing) == 1, placing
+        i = placing[0]
+        assert op._plan[i].jaw_closed and not op._plan[i + 1].jaw_closed
+        assert abs(op._plan[i].object_yaw) < 1e-6
+        # NeedlePick lifts the needle and never lets go: nothing to place.
+        pick = gym.make("SurRoL/NeedlePick-v0")
+        try:
+            op2 = SimulatedOperator(pick.unwrapped, "expert", "e", MappingSettings(), 0)
+            op2.observe(*pick.reset(seed=0))
+            assert not any(g.placing for g in op2._plan)
+        finally:
+            pick.close()
+    finally:
+        env.close()
+
+
+def test_a_failed_placement_is_picked_up_and_placed_again():
+    # A person content with 17° of misalignment (yaw accuracy 0.3 rad) lets the block go beside its groove's
+    # orientation; it does not drop in, they see it, grasp it again where it lies and place it once more.
+    env = gym.make("SurRoL/MatchBoard-v0", max_episode_steps=400)
+    try:
+        op = SimulatedOperator(env.unwrapped, "expert", "sloppy", MappingSettings(), 0,
+                               overrides={"yaw_accuracy_rad": 0.3})
+        op.connect()
+        assert _episode(env, op, seed=1, horizon=400)
+        events = [e for _, e in op.events if e in ("close", "open", "placement-failed")]
+        assert events == ["close", "open", "placement-failed", "close", "open"], events
+    finally:
+        env.close()
+
+
+def test_human_horizon_per_task():
+    # 3× the registered horizon in time; PegTransfer from MatchBoard's 100 steps (the reference's 50 is a
+    # script's); an ECM task's 0.1 s steps count twice; two hands take turns.
+    def horizon(task):
+        eid = surrol_data.envs.env_id(task)
+        return _human_horizon(eid, gym.spec(eid).max_episode_steps)
+
+    assert horizon("NeedlePick") == 150          # the paper's human NeedlePick recordings
+    assert horizon("PegTransfer") == horizon("MatchBoard") == 300
+    assert horizon("ECMReach") == 300 and horizon("BiPegTransfer") == 300

@@ -123,14 +123,22 @@ def test_yanking_a_held_needle_past_the_weld_force_drops_it_and_counts_the_drop(
         if u.grasp.welded:
             break
     assert u.grasp.welded and info["drops"] == 0
-    # Something holds the needle where it is (a clamp fixed to the world) while the tool pulls up at full speed.
+    # Something pulls the needle out of the hand harder than the weld holds (the force-limited arm itself cannot:
+    # it stalls first), for as long as it is held.
     c = u.client
-    pos, quat = c.getBasePositionAndOrientation(u.object_id)
-    c.createConstraint(u.object_id, -1, -1, -1, c.JOINT_FIXED, [0, 0, 0], [0, 0, 0], pos, childFrameOrientation=quat)
+    pull = [0.0, 0.0, 2.0 * physics.GRASP_MAX_FORCE]
+
+    def pull_while_held(env):
+        if env.grasp.attached:
+            pos = c.getBasePositionAndOrientation(env.object_id)[0]
+            c.applyExternalForce(env.object_id, -1, pull, pos, c.WORLD_FRAME)
+
+    u.substep_hook = pull_while_held
     for _ in range(5):
-        obs, _, _, _, info = e.step(np.array([0.0, 0.0, 1.0, 0.0, -1.0], np.float32))
+        obs, _, _, _, info = e.step(np.array([0.0, 0.0, 0.0, 0.0, -1.0], np.float32))
         if not info["grasped"]:
             break
+    u.substep_hook = None
     assert not info["grasped"]
     assert info["drops"] == 1
 
@@ -167,9 +175,66 @@ def test_actions_are_tracked_within_10_percent_in_free_space(needle_pick, action
         assert np.linalg.norm(moved - want) <= 0.1 * np.linalg.norm(want)
 
 
+def test_joint_motors_never_push_harder_than_their_limit_even_in_refined_steps(needle_pick):
+    """A closed jaw driven down onto the pad at full speed: the adaptive sub-steps refine the step near the pad,
+    and the motors' force limits must hold in those finer steps too (PyBullet converts a limit into an impulse
+    with the step current when the command is given)."""
+    e, u = needle_pick, needle_pick.unwrapped
+    e.reset(seed=3)
+    limits = np.array(physics.PSM_MAX_FORCE)
+    worst = []
+
+    def record(env):
+        applied = np.array([s[3] for s in env.client.getJointStates(env.psm.body, range(6))])
+        worst.append(float(np.max(np.abs(applied) / limits)))
+
+    _drive_to(e, u.needle_waypoint(1) + [0.0, 0.0, 0.01], jaw=-1.0)
+    u.substep_hook = record
+    refined = u._substeps.refined_steps
+    for _ in range(4):
+        e.step(np.array([0.0, 0.0, -1.0, 0.0, -1.0], np.float32))
+    u.substep_hook = None
+    assert u._substeps.refined_steps > refined      # the press was refined
+    assert max(worst) <= 1.0 + 1e-6
+
+
+def test_a_block_poked_by_a_closed_jaw_stays_out_of_the_board():
+    # The force-limited tool stalls on the block: it sinks ~2 mm at most (8.6 mm with the old 60 N·m motors, when
+    # 21 of 30 pokes left it inside the board); the issue's 1 mm is the slow xfail test below.
+    r = physics_realism.run_poke_swipe("PegTransfer", "poke", episodes=2)
+    assert r.overlap["object-static"] <= 2.5e-3 and r.left_inside == 0
+
+
+def test_reference_base_placement_is_consistent_and_keeps_commands_cartesian():
+    """The reference puts PSM1's base at (0.05, 0.24, 0.8524) yawed −110° and PSM2's at (0.05, −0.24, 0.8524) yawed
+    −70°, each RCM 0.4864 m along its base's y axis: the RCM points are ours, and an arm built with that yaw puts its
+    tip where it is commanded (the envs use the yaw only with ``psm_env.USE_REFERENCE_BASE_YAW``)."""
+    from surrol_data.envs import kinematics as kin
+    from surrol_data.envs.bimanual_env import PSM2_RCM
+    from surrol_data.envs.psm import Psm
+    from surrol_data.envs.psm_env import (PSM1_BASE_YAW_RAD, PSM1_RCM, REFERENCE_PSM1_BASE_YAW_RAD,
+                                          REFERENCE_PSM2_BASE_YAW_RAD, USE_REFERENCE_BASE_YAW, tool_down)
+
+    for base, yaw_deg, rcm, yaw in (((0.05, 0.24, 0.8524), -110.0, PSM1_RCM, REFERENCE_PSM1_BASE_YAW_RAD),
+                                    ((0.05, -0.24, 0.8524), -70.0, PSM2_RCM, REFERENCE_PSM2_BASE_YAW_RAD)):
+        rot = kin.rot_z3(np.deg2rad(yaw_deg))
+        assert np.allclose(np.asarray(base) + rot @ [0.0, 0.4864, 0.0], rcm, atol=1e-3)
+        assert yaw == pytest.approx(np.deg2rad(yaw_deg))
+    assert PSM1_BASE_YAW_RAD == (REFERENCE_PSM1_BASE_YAW_RAD if USE_REFERENCE_BASE_YAW else 0.0)
+    client = physics.make_client()
+    psm = Psm(client, PSM1_RCM, REFERENCE_PSM1_BASE_YAW_RAD, visual=False)
+    target = kin.pose_from(np.array([0.55, 0.01, 0.70]), tool_down(0.3))
+    sol = psm.ik(target)
+    assert sol.within_limits
+    psm.reset_joints(sol.q, 0.0)
+    assert np.allclose(psm.tip_pose(), target, atol=1e-9)
+    assert abs(np.rad2deg(sol.q[3])) > 60.0      # the yawed base turns the tool roll (the dVRK's joint values)
+    client.disconnect()
+
+
 # ---------------------------------------------------------------------- campaigns (the benchmark's, shorter)
-# Known open (benchmarks/physics_realism.py, 30 episodes): under bang-bang input a tool can jam a block on its peg,
-# a peg reaching > 1 mm into the block's wall, in 4 of 30 BiPegTransfer episodes.
+# Known open (benchmarks/physics_realism.py, 10 episodes): under bang-bang input a block can wedge between a peg and
+# the board and creep into them with no tool touching it, in 1 of 10 BiPegTransfer episodes.
 _OPEN_JAM = pytest.mark.xfail(reason="issue 11 open: see the comment above", strict=False)
 
 
@@ -221,8 +286,8 @@ def test_a_held_object_slips_at_most_2_mm_or_is_dropped(task, policy):
     assert r.grasps_not_between == 0
 
 
-# Known open (benchmarks/physics_realism.py, 30 episodes): a second hand's blades closing on a block the first
-# hand holds press up to 2.5 mm into it (the held block cannot give way until both blades touch).
+# Known open (benchmarks/physics_realism.py, 10 episodes): in a hand-over both hands weld the block and their
+# force-limited arms pull on it; it shifts up to 0.8 mm in the receiving hand, whose blades then overlap it by 1.4 mm.
 _OPEN_OVERLAP = pytest.mark.xfail(reason="issue 11 open: see the comment above", strict=False)
 
 
@@ -232,3 +297,14 @@ _OPEN_OVERLAP = pytest.mark.xfail(reason="issue 11 open: see the comment above",
 def test_oracle_episodes_overlap_nothing_by_more_than_1_mm(task):
     r = physics_realism.run_policy(task, "oracle", episodes=5)
     assert max(r.overlap.values()) <= 1e-3, r.overlap
+
+
+# Known open: the force-limited tool still presses what it pokes or swipes 1.3–2 mm into the pad or the board (the
+# limits that would keep it under 1 mm leave BiPegTransfer's oracle at 91 %; see physics.PSM_MAX_FORCE).
+@pytest.mark.slow
+@pytest.mark.xfail(reason="issue 11 open: see the comment above", strict=False)
+@pytest.mark.parametrize("task", physics_realism.GRASPING_TASKS)
+@pytest.mark.parametrize("kind", ["poke", "swipe"])
+def test_pokes_and_swipes_press_nothing_in_by_more_than_1_mm(task, kind):
+    r = physics_realism.run_poke_swipe(task, kind, episodes=10)
+    assert r.overlap["object-static"] <= 1e-3 and r.left_inside == 0

@@ -13,6 +13,13 @@ per :meth:`DDPG.update` iteration
    where the Q-filter m(s) = 1[Q'(s, a_demo) ≥ Q'(s, π(s))] uses the target critic (all ones without it);
 3. Polyak averaging of both targets with τ.
 
+The offline→online warm start (``algo=ddpgbc_warm``; every option off in the paper-faithful ``ddpgbc``) adds
+a critic pre-training on demo batches, a hold and ramp of the Q term (:func:`q_term_scale`), TD3+BC's |Q|
+normalisation, one joint actor step, and ``filtered_bc``: on replay batches the actor also imitates the
+batch's own actions where the target critic rates them above its own, −λ·1[Q'(s, a) > Q'(s, π(s))]·‖π(s) − a‖²/d_a
+— an improvement step towards actions that were actually taken (and whose value the critic was trained on)
+rather than along ∇ₐQ into actions it only extrapolates to.
+
 The paper's BC pre-training (CoL-style, reference §2) is :meth:`DDPG.pretrain_step`, called by the run loop
 before the online phase; it fits the actor alone to demo batches and then copies it into the target actor.
 """
@@ -60,6 +67,12 @@ class DDPGConfig:
     joint_actor_step: bool = False   # one actor step on replay + demo losses together: Adam rescales a step's
                                      # gradient, so a pure-Q replay step moves the actor at full speed whatever
                                      # its weight; only in a joint step do the Q weight and the BC term compete
+    freeze_normalizer: bool = False  # online data no longer moves the obs/goal statistics: the BC actor keeps
+                                     # the inputs it was trained on (they are the demos' statistics from then on)
+    filtered_bc: bool = False        # the actor's improvement step is BC towards the replay batch's own actions
+                                     # where the critic rates them above the actor's (binary advantage filter),
+                                     # weighted by q_term_scale, instead of −Q: no step along ∇ₐQ at all
+    probe: bool = False              # log per epoch how far the learner has moved from its BC start (warm_probe)
 
 
 def q_term_scale(online_updates: int, config: DDPGConfig) -> float:
@@ -89,6 +102,7 @@ class DDPG:
         self.rng = np.random.default_rng(seed)  # batches and exploration noise; checkpointed
         self.uses_demos_in_loss = config.bc_weight > 0
         self.online_updates = 0  # drives the actor hold / Q-term ramp; checkpointed
+        self.reference = None    # (actor, inputs) frozen at the end of BC pre-training, with config.probe
 
     # ------------------------------------------------------------------ acting
     def act(self, obs: dict, explore: bool) -> np.ndarray:
@@ -123,6 +137,10 @@ class DDPG:
 
     def finish_pretraining(self) -> None:
         self.actor_target.load_state_dict(self.actor.state_dict())
+        if self.config.probe:  # the BC start, with the statistics it was trained on, for warm_probe
+            self.reference = (copy.deepcopy(self.actor).requires_grad_(False), copy.deepcopy(self.inputs))
+        if self.config.freeze_normalizer:
+            self.inputs.frozen = True
 
     def pretrain_critic_step(self, demos: EpisodeReplay) -> float:
         """Offline critic warm-up: a TD step on a demo batch, bootstrapping through the pre-trained actor."""
@@ -144,7 +162,7 @@ class DDPG:
             metrics.update(self._actor_step([(batch, False), (demo_batch, True)], scale))
         else:
             if scale > 0:  # while the actor is held, the replay batch trains the critic only
-                metrics["actor_loss"] = self._actor_step([(batch, False)], scale)["actor_loss"]
+                metrics.update(self._actor_step([(batch, False)], scale))
             # 2. demo batch
             if with_demos:
                 demo_batch = self._tensors(demos.sample(cfg.demo_batch_size, self.rng))
@@ -191,7 +209,7 @@ class DDPG:
     def _actor_loss(self, b: dict[str, torch.Tensor], q_scale: float, bc: bool) -> tuple[torch.Tensor, dict]:
         cfg = self.config
         pi = self.actor(b["o"], b["g"])
-        if q_scale > 0:
+        if q_scale > 0 and not cfg.filtered_bc:
             # the critic is a fixed function here: skipping its weight gradients saves a third of the backward pass
             self.critic.requires_grad_(False)
             objective = self.critic(b["o"], b["g"], pi)
@@ -203,6 +221,13 @@ class DDPG:
         else:
             objective = torch.zeros(pi.shape[:-1])
         out = {}
+        if cfg.filtered_bc and not bc:
+            # imitate the batch's own actions where the critic rates them above the actor's: a step towards
+            # actions that were taken, never towards one the critic only extrapolates to
+            with torch.no_grad():
+                better = (self.critic_target(b["o"], b["g"], b["a"]) > self.critic_target(b["o"], b["g"], pi)).float()
+            objective = objective - q_scale * cfg.bc_weight * better * (pi - b["a"]).pow(2).sum(-1) / self.act_dim
+            out = {"advantage_pass": better.mean().item()}
         if bc:
             per_sample_bc = (pi - b["a"]).pow(2).sum(-1) / self.act_dim
             if cfg.q_filter:
@@ -220,7 +245,9 @@ class DDPG:
         return {"inputs": self.inputs.state_dict(), "actor": self.actor.state_dict(), "critic": self.critic.state_dict(),
                 "actor_target": self.actor_target.state_dict(), "critic_target": self.critic_target.state_dict(),
                 "actor_opt": self.actor_opt.state_dict(), "critic_opt": self.critic_opt.state_dict(),
-                "rng": rng_state_tensor(self.rng), "online_updates": self.online_updates}
+                "rng": rng_state_tensor(self.rng), "online_updates": self.online_updates,
+                **({"reference_actor": self.reference[0].state_dict(), "reference_inputs": self.reference[1].state_dict()}
+                   if self.reference is not None else {})}
 
     def load_state_dict(self, state: dict) -> None:
         self.inputs.load_state_dict(state["inputs"])
@@ -228,4 +255,9 @@ class DDPG:
             getattr(self, name).load_state_dict(state[name])
         self.rng = rng_from_tensor(state["rng"])
         self.online_updates = int(state.get("online_updates", 0))
+        if "reference_actor" in state:
+            actor, inputs = copy.deepcopy(self.actor).requires_grad_(False), copy.deepcopy(self.inputs)
+            actor.load_state_dict(state["reference_actor"])
+            inputs.load_state_dict(state["reference_inputs"])
+            self.reference = (actor, inputs)
 

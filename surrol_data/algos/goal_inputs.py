@@ -18,8 +18,11 @@ class GoalInputs:
         self.clip_obs = float(clip_obs)
         self.obs_norm = Normalizer(obs_dim, eps, clip)
         self.goal_norm = Normalizer(goal_dim, eps, clip)
+        self.frozen = False  # True: update() keeps the statistics as they are (ddpgbc_warm's demo statistics)
 
     def update(self, obs: np.ndarray, goal: np.ndarray) -> None:
+        if self.frozen:
+            return
         self.obs_norm.update(np.clip(obs, -self.clip_obs, self.clip_obs))
         self.goal_norm.update(np.clip(goal, -self.clip_obs, self.clip_obs))
 
@@ -30,9 +33,11 @@ class GoalInputs:
         return torch.from_numpy(o), torch.from_numpy(g)
 
     def state_dict(self) -> dict:
-        return {"clip_obs": self.clip_obs, "obs": self.obs_norm.state_dict(), "goal": self.goal_norm.state_dict()}
+        return {"clip_obs": self.clip_obs, "obs": self.obs_norm.state_dict(), "goal": self.goal_norm.state_dict(),
+                "frozen": self.frozen}
 
     def load_state_dict(self, state: dict) -> None:
         self.clip_obs = float(state["clip_obs"])
         self.obs_norm.load_state_dict(state["obs"])
         self.goal_norm.load_state_dict(state["goal"])
+        self.frozen = bool(state.get("frozen", False))

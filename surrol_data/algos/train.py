@@ -41,6 +41,7 @@ from surrol_data.algos.ddpg import DDPG, DDPGConfig
 from surrol_data.algos.demos import DemoSpec, load_demos
 from surrol_data.algos.replay import EpisodeReplay, rng_from_tensor, rng_state_tensor
 from surrol_data.algos.sac import SAC, SACConfig
+from surrol_data.algos.warm_probe import probe, probe_states
 from surrol_data.evaluation.metrics import summarize, trajectory_proficiency
 from surrol_data.evaluation.rollout import EVAL_SEED_BASE, rollout
 
@@ -253,6 +254,8 @@ def train(cfg: TrainConfig) -> list[dict]:
             learner.inputs.update(*demo_buffer.sample_episode_for_stats(slot))
             if s.demos_in_replay and s.online:
                 replay.add_episode(*episode)
+    # offline→online diagnostics (algo.params.probe=true): fixed demo states, probed after every epoch
+    probe_set = probe_states(demo_trajs) if demo_trajs and getattr(learner.config, "probe", False) else None
     log = RunLog(run_dir, rows, cfg.tensorboard)
     process = {"pid": os.getpid(), "started": time.time(), "resumed_after_epoch": state["epoch"] if rows else None}
     _write_json(run_dir / "process.json", process)
@@ -264,6 +267,8 @@ def train(cfg: TrainConfig) -> list[dict]:
         row = {"epoch": state["epoch"], "env_steps": state["env_steps"], "episodes": state["episodes"],
                "updates": state["updates"], **evaluate_policy(eval_env, policy, s.eval_episodes), **extra}
         row["time_eval_s"] = round(time.perf_counter() - t_eval, 3)
+        if probe_set is not None and s.online:
+            row.update(probe(learner, *probe_set))
         state["wall_s"] += time.perf_counter() - started  # the epoch's collection, updates and evaluation
         row["wall_s"] = round(state["wall_s"], 3)
         log.append(row)

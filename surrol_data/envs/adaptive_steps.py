@@ -46,7 +46,7 @@ class SubstepPlanner:
     def refinement(self, dt: float) -> int:
         """How many fine steps the next coarse step of ``dt`` seconds needs (1 = none)."""
         k = self._tool_k
-        travel = self._object_travel(dt)
+        travel = self._object_travel(dt) if self._bodies else 0.0
         if travel:
             k = max(k, self._k(travel, physics.MAX_OBJECT_TRAVEL_PER_STEP_M))
         if k > 1:
@@ -62,8 +62,9 @@ class SubstepPlanner:
         worst = 0.0
         limit = physics.MAX_OBJECT_TRAVEL_PER_STEP_M * SCALING / dt   # scaled speed below which nothing matters
         fall = _GRAVITY * dt
+        cid = self._cid
         for body in self._bodies:
-            v = _base_velocity(body, physicsClientId=self._cid)[0]
+            v = _base_velocity(body, cid)[0]   # (positional: PyBullet's keyword parsing costs more than the call)
             speed = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) + (fall if v[2] < -fall else 0.0)
             # (Falling objects speed up within the step by what gravity gives them meanwhile.)
             if speed <= limit:
@@ -94,7 +95,7 @@ class SubstepPlanner:
         c = self.client
         lo, hi = [math.inf] * 3, [-math.inf] * 3
         for link in links:
-            a, b = c.getAABB(body, link)
+            a, b = pb.getAABB(body, link, self._cid)
             lo = [min(x, y) for x, y in zip(lo, a)]
             hi = [max(x, y) for x, y in zip(hi, b)]
         lo = [x - reach for x in lo]

@@ -31,8 +31,10 @@ from surrol_data.envs import objects, physics
 from surrol_data.envs.adaptive_steps import SubstepPlanner
 from surrol_data.envs.ecm import SceneEndoscope
 from surrol_data.envs.grasp import Grasp
+from surrol_data.envs.numeric import clip
 from surrol_data.envs.psm import Psm
-from surrol_data.envs.psm_env import (ACTION_PITCH_RAD, PITCH_LIMIT_RAD, PSM1_RCM, ROTATION_MODES,  # noqa: F401
+from surrol_data.envs.psm_env import (ACTION_PITCH_RAD, PITCH_LIMIT_RAD, PSM1_BASE_YAW_RAD, PSM1_RCM,  # noqa: F401
+                                      PSM2_BASE_YAW_RAD, ROTATION_MODES,  # noqa: F401
                                       WORKSPACE_MARGIN, PsmEnv, approach_direction, tilted_tool,
                                       tip_orientation_features, tool_down, wrap_angle)
 from surrol_data.envs.units import ACTION_POSITION_M, ACTION_YAW_RAD, SCALING
@@ -88,7 +90,8 @@ class BimanualEnv(PsmEnv):
     # ------------------------------------------------------------------ scene
     def _build_world(self) -> None:
         objects.make_table(self.client, visual=self.visual)
-        self.psms = (Psm(self.client, PSM1_RCM, visual=self.visual), Psm(self.client, PSM2_RCM, visual=self.visual))
+        self.psms = (Psm(self.client, PSM1_RCM, PSM1_BASE_YAW_RAD, visual=self.visual),
+                     Psm(self.client, PSM2_RCM, PSM2_BASE_YAW_RAD, visual=self.visual))
         # A shaft does not collide with the other arm: at the oracles' hand-overs the tools meet tip to tip over
         # the block or needle, and the 8 mm shafts, converging from the two RCMs, would touch the other tool's
         # shaft and wrist and jam it (a limit of those plans more than of the arms). Each shaft still collides
@@ -138,7 +141,7 @@ class BimanualEnv(PsmEnv):
         if action.size != self.ACTION_DIM:
             raise ValueError(f"{type(self).__name__} takes a {self.ACTION_DIM}-D action [PSM1 5 | PSM2 5], "
                              f"got shape {action.shape}")
-        action = np.clip(action.reshape(2, 5), -1.0, 1.0)
+        action = clip(action.reshape(2, 5), -1.0, 1.0)
         for i in range(2):
             self._apply_arm_action(i, action[i])
         self._closing = tuple(g for g, arm_action in zip(self.grasps, action) if arm_action[4] < 0)
@@ -148,8 +151,7 @@ class BimanualEnv(PsmEnv):
             grasp.update(closing=arm_action[4] < 0)
         obs = self._get_obs()
         info = self._info(obs)
-        reward = float(self.compute_reward(obs["achieved_goal"], obs["desired_goal"]))
-        return obs, reward, False, False, info
+        return obs, self._step_reward(obs, info), False, False, info
 
     # ------------------------------------------------------------------ internals
     def simulate(self, steps: int) -> None:
@@ -162,19 +164,19 @@ class BimanualEnv(PsmEnv):
     def _tool_rotation(self, arm: int, angle: float) -> np.ndarray:
         return tilted_tool(angle) if self.ROTATION_MODE[arm] == "pitch" else tool_down(angle)
 
-    def _rotation_angle(self, arm: int, rotation: np.ndarray) -> float:
-        """The arm's controlled angle: the tilt (roll term) in pitch mode, the yaw in yaw mode."""
-        features = tip_orientation_features(rotation)
+    def _rotation_angle(self, arm: int, pose: np.ndarray) -> float:
+        """The arm's controlled angle at tip ``pose``: the tilt (roll term) in pitch mode, the yaw in yaw mode."""
+        features = self._orientation_features(pose)
         return float(features[0] if self.ROTATION_MODE[arm] == "pitch" else features[2])
 
     def _apply_arm_action(self, arm: int, action: np.ndarray) -> None:
         pose = self._tips[arm]
         ws = self.WORKSPACES[arm]
         target = pose[:3, 3] + action[:3] * ACTION_POSITION_M
-        target = np.clip(target, ws[:, 0] - WORKSPACE_MARGIN[:, 0], ws[:, 1] + WORKSPACE_MARGIN[:, 1])
-        angle = self._rotation_angle(arm, pose[:3, :3])
+        target = clip(target, ws[:, 0] - WORKSPACE_MARGIN[:, 0], ws[:, 1] + WORKSPACE_MARGIN[:, 1])
+        angle = self._rotation_angle(arm, pose)
         if self.ROTATION_MODE[arm] == "pitch":
-            angle = float(np.clip(angle + action[3] * ACTION_PITCH_RAD, -PITCH_LIMIT_RAD, PITCH_LIMIT_RAD))
+            angle = float(min(max(angle + action[3] * ACTION_PITCH_RAD, -PITCH_LIMIT_RAD), PITCH_LIMIT_RAD))
         else:
             angle = angle + action[3] * ACTION_YAW_RAD
         psm = self.psms[arm]
@@ -183,7 +185,7 @@ class BimanualEnv(PsmEnv):
 
     def robot_state(self) -> np.ndarray:
         return np.concatenate([
-            np.concatenate([pose[:3, 3], tip_orientation_features(pose[:3, :3]), [psm.jaw_angle()]])
+            np.concatenate([pose[:3, 3], self._orientation_features(pose), [psm.jaw_angle()]])
             for pose, psm in zip(self._tips, self.psms)])
 
     def observation_vector(self) -> np.ndarray:

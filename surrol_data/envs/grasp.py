@@ -30,12 +30,15 @@ from typing import Callable
 import numpy as np
 
 from surrol_data.envs import physics
+from surrol_data.envs.numeric import vector_norm
+from surrol_data.envs.physics import pb
 from surrol_data.envs.psm import EEF_LINK, JAW_JOINTS
 from surrol_data.envs.units import SCALING
 
 _TOUCH = physics.GRASP_CONTACT_DISTANCE_M * SCALING
 _BLADE_LENGTH = physics.BLADE_LENGTH_M * SCALING
 _ACROSS = np.cos(np.deg2rad(45.0))   # contact normal within 45° of the inner-face normal
+_ORIGIN, _NO_TURN = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)
 # Direction from each blade towards the other, in the blade's link frame (blade 6 lies on +x, blade 7 on −x).
 _TOWARDS_OTHER = (-1.0, 1.0)
 
@@ -66,15 +69,16 @@ class Grasp:
         return all(self._inner_face_touch(j, towards) for j, towards in zip(JAW_JOINTS, _TOWARDS_OTHER))
 
     def _inner_face_touch(self, link: int, towards_other: float) -> bool:
-        c = self.client
-        points = c.getClosestPoints(self.psm.body, self.object_id, _TOUCH, linkIndexA=link)
+        # (Run after every physics step while a jaw closes: PyBullet called positionally where it can.)
+        cid = self.client._client
+        points = pb.getClosestPoints(self.psm.body, self.object_id, _TOUCH, link, physicsClientId=cid)
         if not points:
             return False
-        state = c.getLinkState(self.psm.body, link, computeForwardKinematics=True)
-        inv_pos, inv_quat = c.invertTransform(state[4], state[5])
+        state = pb.getLinkState(self.psm.body, link, 0, 1, cid)
+        inv_pos, inv_quat = pb.invertTransform(state[4], state[5])
         for p in points:
-            along = c.multiplyTransforms(inv_pos, inv_quat, p[6], [0, 0, 0, 1])[0][1]
-            normal_x = c.multiplyTransforms([0, 0, 0], inv_quat, p[7], [0, 0, 0, 1])[0][0]
+            along = pb.multiplyTransforms(inv_pos, inv_quat, p[6], _NO_TURN)[0][1]
+            normal_x = pb.multiplyTransforms(_ORIGIN, inv_quat, p[7], _NO_TURN)[0][0]
             # p[7] points from the object to the blade: for an inner-face touch, away from the other blade.
             if -towards_other * normal_x > _ACROSS and -_TOUCH <= along <= _BLADE_LENGTH:
                 return True
@@ -84,7 +88,7 @@ class Grasp:
         """How far (real metres) the held object has moved in the hand since the weld formed."""
         if self._held_at is None:
             return 0.0
-        return float(np.linalg.norm(self._relative_position() - self._held_at)) / SCALING
+        return float(vector_norm(self._relative_position() - self._held_at)) / SCALING
 
     def grip_if_between(self) -> bool:
         """Called after every physics substep while the jaw closes: grip the moment both blades touch the
@@ -117,14 +121,16 @@ class Grasp:
         return np.asarray(self._relative_pose()[0])
 
     def _relative_pose(self):
-        c = self.client
-        eef = c.getLinkState(self.psm.body, EEF_LINK, computeForwardKinematics=True)
+        # (Asked for every step while holding: PyBullet called positionally, its keyword parsing costing more than
+        # the calls; getLinkState's arguments are computeLinkVelocity=0, computeForwardKinematics=1.)
+        cid = self.client._client
+        eef = pb.getLinkState(self.psm.body, EEF_LINK, 0, 1, cid)
         if self.object_link < 0:
-            obj_pos, obj_quat = c.getBasePositionAndOrientation(self.object_id)
+            obj_pos, obj_quat = pb.getBasePositionAndOrientation(self.object_id, cid)
         else:
-            obj_pos, obj_quat = c.getLinkState(self.object_id, self.object_link, computeForwardKinematics=True)[:2]
-        inv_pos, inv_quat = c.invertTransform(eef[4], eef[5])
-        return c.multiplyTransforms(inv_pos, inv_quat, obj_pos, obj_quat)
+            obj_pos, obj_quat = pb.getLinkState(self.object_id, self.object_link, 0, 1, cid)[:2]
+        inv_pos, inv_quat = pb.invertTransform(eef[4], eef[5])
+        return pb.multiplyTransforms(inv_pos, inv_quat, obj_pos, obj_quat)
 
     def _attach(self, max_force: float) -> None:
         c = self.client

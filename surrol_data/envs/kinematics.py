@@ -9,6 +9,7 @@ Joint order: outer yaw, outer pitch, insertion (prismatic, m), tool roll, wrist 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,13 +44,25 @@ def _rot_x(a: float) -> np.ndarray:
     return np.array([[1, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1.0]])
 
 
+# FK and IK run every step: fresh matrices are copies of the identity with the entries set (math's sin/cos give
+# numpy's values), and products are ``a.dot(b)``, which computes exactly what ``a @ b`` does (the same BLAS
+# kernel, checked bit for bit) at a third of the call overhead on 4×4 arrays.
+_EYE4 = np.eye(4)
+_EYE3 = np.eye(3)
+
+
 def _rot_z(a: float) -> np.ndarray:
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, -s, 0, 0], [s, c, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1.0]])
+    c, s = math.cos(a), math.sin(a)
+    m = _EYE4.copy()
+    m[0, 0] = c
+    m[0, 1] = -s
+    m[1, 0] = s
+    m[1, 1] = c
+    return m
 
 
 def _trans(x: float = 0.0, z: float = 0.0) -> np.ndarray:
-    t = np.eye(4)
+    t = _EYE4.copy()
     t[0, 3], t[2, 3] = x, z
     return t
 
@@ -66,20 +79,36 @@ def dh_joint_transform(row, q: float) -> np.ndarray:
 
 
 _PSM_FIXED = tuple(dh_fixed_transform(row) for row in PSM_DH)
+# The chain starts with identity @ fixed_1: a constant, computed once (the same product, so the same bits).
+_PSM_FIRST_FIXED = np.eye(4) @ _PSM_FIXED[0]
+_PSM_PRISMATIC = tuple(bool(row[4]) for row in PSM_DH)
 
 
-def psm_link_frames(q) -> list[np.ndarray]:
-    """Frames 1..6 of the PSM in the RCM frame (frame 6 = wrist yaw)."""
-    frames, t = [], np.eye(4)
-    for row, fixed, qi in zip(PSM_DH, _PSM_FIXED, q):
-        t = t @ fixed @ dh_joint_transform(row, qi)
+def _psm_chain(q, n: int) -> list[np.ndarray]:
+    """Frames 1..n of the PSM in the RCM frame for the first ``n`` joints of ``q``."""
+    frames = []
+    t = None
+    for i in range(n):
+        joint = _trans(z=q[i]) if _PSM_PRISMATIC[i] else _rot_z(q[i])
+        t = (_PSM_FIRST_FIXED if i == 0 else t.dot(_PSM_FIXED[i])).dot(joint)
         frames.append(t)
     return frames
 
 
+def psm_link_frames(q) -> list[np.ndarray]:
+    """Frames 1..6 of the PSM in the RCM frame (frame 6 = wrist yaw)."""
+    return _psm_chain(q, len(PSM_DH))
+
+
 def psm_fk(q) -> np.ndarray:
     """Tool-tip pose (4×4, RCM frame, metres) for joints ``q`` (6,)."""
-    return psm_link_frames(q)[-1] @ TOOL_TIP_OFFSET
+    return _psm_chain(q, len(PSM_DH))[-1].dot(TOOL_TIP_OFFSET)
+
+
+_TIP_ROTATION_T = TOOL_TIP_OFFSET[:3, :3].T
+_TIP_OFFSET_POSITION = TOOL_TIP_OFFSET[:3, 3]
+_PSM_LOWER_TOLERANT = (PSM_LOWER - 1e-9).tolist()
+_PSM_UPPER_TOLERANT = (PSM_UPPER + 1e-9).tolist()
 
 
 @dataclass(frozen=True)
@@ -97,31 +126,34 @@ def psm_ik(tip_pose: np.ndarray) -> IKResult:
     Insertion is |p5| plus the shaft-end offset; the outer yaw/pitch follow from the shaft direction and
     the wrist joints from R3ᵀ·R6 (the DH structure makes them an Euler-like extraction).
     """
-    r6 = tip_pose[:3, :3] @ TOOL_TIP_OFFSET[:3, :3].T
-    p6 = tip_pose[:3, 3] - r6 @ TOOL_TIP_OFFSET[:3, 3]
+    # (Called every step: scalar clamps and norms as sqrt(x·x), which is what np.clip and np.linalg.norm compute
+    # here, without their per-call overhead.)
+    r6 = tip_pose[:3, :3].dot(_TIP_ROTATION_T)
+    p6 = tip_pose[:3, 3] - r6.dot(_TIP_OFFSET_POSITION)
     z6 = r6[:, 2]
     radial = p6 - np.dot(p6, z6) * z6
-    radial_norm = np.linalg.norm(radial)
+    radial_norm = np.sqrt(radial.dot(radial))
     if radial_norm < 1e-9:
         raise ValueError("tip pose is singular for the PSM: the wrist-yaw axis passes through the RCM")
     p5 = p6 - WRIST_LENGTH * radial / radial_norm
-    depth = np.linalg.norm(p5)
+    depth = np.sqrt(p5.dot(p5))
     s = p5 / depth
     q3 = depth + SHAFT_END_OFFSET
-    q2 = np.arcsin(np.clip(-s[1], -1.0, 1.0))
+    q2 = np.arcsin(min(max(-s[1], -1.0), 1.0))
     q1 = np.arctan2(s[0], -s[2])
-    r3 = psm_link_frames([q1, q2, q3, 0.0, 0.0, 0.0])[2][:3, :3]
-    m = r3.T @ r6
-    q5 = np.arcsin(np.clip(-m[2, 2], -1.0, 1.0))
+    r3 = _psm_chain((q1, q2, q3), 3)[2][:3, :3]
+    m = r3.T.dot(r6)
+    q5 = np.arcsin(min(max(-m[2, 2], -1.0), 1.0))
     q4 = np.arctan2(m[1, 2], m[0, 2])
     q6 = np.arctan2(m[2, 0], m[2, 1])
     q = np.array([q1, q2, q3, q4, q5, q6])
-    ok = bool(np.all(q >= PSM_LOWER - 1e-9) and np.all(q <= PSM_UPPER + 1e-9))
+    # (The same comparisons as numpy's on the array; its reductions cost more than the whole test.)
+    ok = all(lo <= v <= hi for v, lo, hi in zip(q.tolist(), _PSM_LOWER_TOLERANT, _PSM_UPPER_TOLERANT))
     return IKResult(q=q, within_limits=ok)
 
 
 def pose_from(position, rotation) -> np.ndarray:
-    t = np.eye(4)
+    t = _EYE4.copy()
     t[:3, :3] = rotation
     t[:3, 3] = position
     return t
@@ -130,12 +162,18 @@ def pose_from(position, rotation) -> np.ndarray:
 def euler_xyz(rotation: np.ndarray) -> np.ndarray:
     """Extrinsic x-y-z Euler angles (roll, pitch, yaw) in rad of a rotation matrix: R = Rz(yaw) Ry(pitch) Rx(roll)."""
     r = rotation
-    return np.array([np.arctan2(r[2, 1], r[2, 2]), np.arcsin(np.clip(-r[2, 0], -1.0, 1.0)), np.arctan2(r[1, 0], r[0, 0])])
+    return np.array([np.arctan2(r[2, 1], r[2, 2]), np.arcsin(min(max(-r[2, 0], -1.0), 1.0)),
+                     np.arctan2(r[1, 0], r[0, 0])])
 
 
 def rot_z3(a: float) -> np.ndarray:
-    c, s = np.cos(a), np.sin(a)
-    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    c, s = math.cos(a), math.sin(a)
+    m = _EYE3.copy()
+    m[0, 0] = c
+    m[0, 1] = -s
+    m[1, 0] = s
+    m[1, 1] = c
+    return m
 
 
 def tool_down_rotation(yaw: float) -> np.ndarray:

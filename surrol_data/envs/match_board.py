@@ -22,6 +22,7 @@ centre, mid-height).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -71,6 +72,12 @@ def glyph_half_turn_fits(name: str, other: str) -> bool:
     return turned == {tuple(x) for x in glyph_pixels(other)}
 
 
+def _read_only(a: np.ndarray) -> np.ndarray:
+    a.setflags(write=False)
+    return a
+
+
+@functools.cache
 def grasp_pixel(name: str) -> tuple[np.ndarray, float]:
     """Where to grasp a block: the centre (glyph frame, metres) of the stroke pixel nearest the block's centre
     whose two neighbours across the stroke are empty (room for the open blades), and the jaw-opening direction's
@@ -87,7 +94,7 @@ def grasp_pixel(name: str) -> tuple[np.ndarray, float]:
                 best = (d, _pixel_centre(p), angle)
     if best is None:
         raise ValueError(f"glyph {name!r} has no stroke the jaws can close across")
-    return best[1], best[2]
+    return _read_only(best[1]), best[2]
 
 
 # ---------------------------------------------------------------------- blocks
@@ -107,9 +114,16 @@ def block_spec(client, name: str, visual: bool = True) -> dict:
                 baseInertialFramePosition=com)
 
 
+# The glyph's constants are asked for at every step (block_pose, the grasp point): computed once per glyph.
+@functools.cache
 def glyph_centroid(name: str) -> np.ndarray:
     """Centroid of the glyph's pixels (glyph frame, metres): the block's centre of mass."""
-    return np.mean([_pixel_centre(p) for p in glyph_pixels(name)], axis=0)
+    return _read_only(np.mean([_pixel_centre(p) for p in glyph_pixels(name)], axis=0))
+
+
+@functools.cache
+def _centroid_3d(name: str) -> np.ndarray:
+    return _read_only(np.array([*glyph_centroid(name), 0.0]))
 
 
 def _block_inertia(name: str) -> list[float]:
@@ -140,9 +154,13 @@ def place_block(client, body: int, name: str, xy, surface_z: float, yaw: float) 
 
 def block_pose(client, body: int, name: str) -> tuple[np.ndarray, np.ndarray]:
     """(glyph centre at mid-height, real metres; rotation matrix) of block ``name``."""
-    pos, quat = client.getBasePositionAndOrientation(body)
-    rot = np.asarray(client.getMatrixFromQuaternion(quat)).reshape(3, 3)
-    return np.asarray(pos) / SCALING - rot @ np.array([*glyph_centroid(name), 0.0]), rot
+    return block_pose_from(*client.getBasePositionAndOrientation(body), name)
+
+
+def block_pose_from(position, quaternion, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`block_pose` from the block body's base pose as PyBullet reports it."""
+    rot = np.asarray(pb.getMatrixFromQuaternion(quaternion)).reshape(3, 3)
+    return np.asarray(position) / SCALING - rot @ _centroid_3d(name), rot
 
 
 def yaw_of(rotation: np.ndarray) -> float:

@@ -12,10 +12,16 @@ both sides of the trade, and tests/test_physics_realism.py keeps them true.
 Measured and rejected (benchmarks/physics_realism.py, 3–5-episode probes): a closed jaw sank 1.2–1.8 mm into
 the pad because Bullet's box-box test reports no contact before boxes overlap (fixed by hull blades, see
 shapes.py), not because of the step. Against a tool pressing an object into a static body (pokes, swipes;
-the object sinks 1.5–9 mm), none of these helped enough to keep: 24 or 48 sub-steps, 60 or 200 solver
+the object sank 1.5–9 mm), none of these helped enough to keep: 24 or 48 sub-steps, 60 or 200 solver
 iterations (200 halved it at 4× the cost), contact ERP 0.8, contact stiffness on the objects or the statics,
-10× lower arm motor forces (60× lower removed it but the arm then sagged under gravity: tracking error
-> 100 %), 100× lighter links, the MLCP solvers, and the gauze as a rigid body (maximal coordinates).
+the MLCP solvers, and the gauze as a rigid body (maximal coordinates). A block pushed down by an external force
+alone (no tool) does not sink even at 60 N: the press-in came from the arm, whose position motors pushed with
+up to 60 N·m (and, under the adaptive sub-steps, up to 8× more: see psm_env._set_time_step) through heavy links.
+
+What removed it is the dVRK's own arrangement: a light, gravity-compensated arm whose joint motors are force
+limited, so a tool stalls against a rigid obstacle instead of driving through it (PegTransfer pokes, 5 episodes:
+object↔static 7.7 mm at the old forces → 0.6 mm; bang-bang PegTransfer 0.1 mm), while unit-box actions are
+still tracked within 2.7 % in free space.
 """
 
 from __future__ import annotations
@@ -23,6 +29,7 @@ from __future__ import annotations
 import atexit
 import contextlib
 import ctypes
+import functools
 import os
 import sys
 import weakref
@@ -41,7 +48,17 @@ SETTLE_STEPS = 4                  # physics steps after a reset before the first
 # Velocity limits are real units (rad/s; m/s for insertion), converted to the scaled scene where needed.
 PSM_POSITION_GAIN = 0.4
 PSM_VELOCITY_GAIN = 1.0
-PSM_MAX_FORCE = (60.0, 60.0, 60.0, 10.0, 10.0, 10.0)          # N·m / N (scaled scene)
+# Force limits (N·m / N, scaled scene), as the dVRK's current limits: the most a tool pushes with, so it stalls on
+# a rigid obstacle. Measured on PegTransfer pokes (a closed jaw driven down onto a block wall, 5 episodes),
+# free-space tracking of the unit box, and the oracles: at (60, 60, 60, 10, 10, 10) the block sank 7.7 mm into the
+# board; at (0.5, 0.5, 0.5) 0.3 mm, but the tool could not drag the MatchBoardPanel drawer (0 of 3); at (1, 1, 0.5)
+# 0.6 mm, but BiPegTransfer's oracle, carrying the block 3 mm over the peg tops, caught it on a peg in 9 of 100
+# episodes (91 %; at (1.5, 1.5, 0.75) it still failed 3). At (2, 2, 1) BiPegTransfer's oracle is back to
+# 99 of 100 and the poked block sinks 2.0 mm (the needle under a poke or swipe 1.3–1.5 mm), tracking 2.7 %. The
+# wrist's 0.1 pushes ~2 N at the blade ends, ~70× a blade's weight; the jaws squeeze with JAW_MAX_FORCE. These
+# limits only work with light, gravity-compensated links (below): at 3× the link mass below, forces (1, 1, 1)
+# tracked a unit action with 19 % error.
+PSM_MAX_FORCE = (2.0, 2.0, 1.0, 0.1, 0.1, 0.1)
 # Joint speed limits. A full diagonal action (1, ±1, ±1) asks for 17.3 mm of tip motion per 0.2 s step; with
 # the tip ~0.14 m below the RCM that needs ~0.6 rad/s of outer yaw/pitch and ~0.09 m/s of insertion, and the PD
 # must get there within the step. At (0.35, 0.35, 0.07) a (1, −1, 1) action moved 10–14 mm (41 % tracking
@@ -49,16 +66,22 @@ PSM_MAX_FORCE = (60.0, 60.0, 60.0, 10.0, 10.0, 10.0)          # N·m / N (scaled
 # ~1 %. Faster moves into contact are what the adaptive sub-steps below are for.
 PSM_MAX_VELOCITY = (1.0, 1.0, 0.2, 3.0, 3.0, 3.0)            # rad/s, m/s (real)
 # Jaw squeeze. The blades stop on the object at first touch (the grasp grips at that physics step and holds the
-# jaw there), so the squeeze force only matters while closing: 4 (the old value) pried a blade 1 mm into a
-# needle before the grip; at 0.01–0.1 a closed jaw pushed onto a block wall was pried open by the wall; 1.0
-# keeps both under the benchmark's limits.
-JAW_MAX_FORCE = 1.0
-# Link inertia (scaled scene). Links whose inertia about their joint is near zero make the articulated
-# solver ill-conditioned: contacts then swing the jaws and wrist far from their targets.
-PSM_LINK_MASS = 0.1
-PSM_LINK_INERTIA = 1e-2
-JAW_MASS = 0.1
-JAW_INERTIA = 1e-3
+# jaw there), so the squeeze force only matters while closing. With the heavy arm (links 0.1), 0.01–0.1 let a
+# block wall pry a closed jaw open and 4 pried a blade 1 mm into a needle; with the light arm below, 0.1 keeps
+# pokes and swipes grasp-free and the blades within 0.5 mm of what they touch (with 0.3 on the jaws and the
+# wrist, a poked block sank 1.1 mm).
+JAW_MAX_FORCE = 0.1
+# Link inertia (scaled scene). The arm is light, as the motors' force limits require (inertia is what they must
+# accelerate: 1 cm in 0.2 s from rest): mass 0.01 / inertia 1e-3 tracked a unit action with 19 % error at forces
+# (1, 1, 1), 0.003 / 3e-4 within 2.7 %. Its weight is compensated (Psm.compensate_gravity, every physics
+# step), as on the dVRK, so that the force limits are not spent holding the arm up (without it, 60× lower motor
+# forces than the old ones let the old arm sag > 100 % off its targets). Links whose inertia about their joint is
+# near zero make the articulated solver ill-conditioned (contacts then swing the jaws and wrist far from their
+# targets), so the diagonal stays 0.1 × the mass (in scaled m²), the ratio the old values had.
+PSM_LINK_MASS = 0.003
+PSM_LINK_INERTIA = 3e-4
+JAW_MASS = 0.003
+JAW_INERTIA = 3e-5
 JAW_MAX_VELOCITY = 4.0            # rad/s
 JAW_OPEN_RAD = np.deg2rad(40.0)   # the env's "open" jaw command
 JAW_CLOSED_RAD = 0.0
@@ -120,11 +143,20 @@ def _disconnect_at_exit(ref: weakref.ref) -> None:
             client.disconnect()
 
 
-def make_client(gui: bool = False) -> BulletClient:
-    """A fresh PyBullet world with this project's physics settings (no module-level client anywhere)."""
+def make_client(gui: bool = False, renderer: bool = True) -> Client:
+    """A fresh PyBullet world with this project's physics settings (no module-level client anywhere).
+
+    ``renderer=False``, for a world that is never rendered (no camera, no render mode): PyBullet's built-in
+    TinyRenderer is unloaded. Otherwise every body created builds render meshes (of its collision shapes when it
+    has no visual ones), more than half the cost of an env's reset; the physics never reads them."""
     with _stdout_silenced(not gui):
-        client = BulletClient(connection_mode=pb.GUI if gui else pb.DIRECT)
+        client = Client(connection_mode=pb.GUI if gui else pb.DIRECT)
     atexit.register(_disconnect_at_exit, weakref.ref(client))
+    if not renderer and not gui:
+        # Loading an already loaded plugin returns its id; unloaded, the server has no renderer to feed.
+        plugin = client.loadPlugin("tinyRendererPlugin")
+        if plugin >= 0:
+            client.unloadPlugin(plugin)
     configure(client)
     if gui:
         client.configureDebugVisualizer(pb.COV_ENABLE_GUI, 0)
@@ -168,3 +200,20 @@ def _stdout_silenced(enabled: bool = True, fds: tuple[int, ...] = (1,)):
 with _stdout_silenced(fds=(1, 2)):
     import pybullet as pb
     from pybullet_utils.bullet_client import BulletClient
+
+
+class Client(BulletClient):
+    """PyBullet's client wrapper, with each function it binds to the client kept for the next call.
+
+    BulletClient binds the client id afresh (an ``inspect`` test and a new partial, ~2 µs) on every attribute
+    access, and an env step makes dozens of calls: binding once per name removes that cost, the calls are the
+    same. Disconnecting forgets the bindings (PyBullet hands a disconnected client's id on to the next one)."""
+
+    def __getattr__(self, name):
+        attribute = super().__getattr__(name)
+        if name == "disconnect":
+            for key in [k for k, v in self.__dict__.items() if isinstance(v, functools.partial)]:
+                del self.__dict__[key]
+        elif isinstance(attribute, functools.partial):
+            self.__dict__[name] = attribute
+        return attribute

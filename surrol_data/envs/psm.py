@@ -33,10 +33,17 @@ _WRIST_COLOUR = (0.3, 0.3, 0.35, 1.0)
 _JAW_COLOUR = (0.2, 0.2, 0.22, 1.0)
 
 _MOVING_JOINTS = ARM_JOINTS + JAW_JOINTS
+_POSITION_CONTROL = pb.POSITION_CONTROL
+_ROLL_LOWER, _ROLL_UPPER = float(kin.PSM_LOWER[3]), float(kin.PSM_UPPER[3])
+_CARRIED_LINKS = (2, 3, 4, 5, 6, 7, 8)   # the links the insertion joint carries (gravity compensation)
 # Joints whose targets ramp step by step (they carry the tip); the wrist's get their targets at once (their
 # blade-end speeds are small, and a 30° turn needs the whole period at the wrist's speed limit).
 _RAMPED_JOINTS = (0, 1, 2)
 _WRIST_JOINTS = (3, 4, 5)
+_RAMP_ZEROS = [0.0] * len(_RAMPED_JOINTS)
+_RAMP_FORCES = [physics.PSM_MAX_FORCE[k] for k in _RAMPED_JOINTS]
+_RAMP_POSITION_GAINS = [physics.PSM_POSITION_GAIN] * len(_RAMPED_JOINTS)
+_RAMP_VELOCITY_GAINS = [physics.PSM_VELOCITY_GAIN] * len(_RAMPED_JOINTS)
 # Levers (real metres per scaled unit of joint motion) from joints 2–7 to the blade ends: insertion (scaled),
 # tool roll (blades within ~2 mm of the shaft axis), wrist pitch (wrist + blade), wrist yaw and the jaws (blade).
 _BLADE_LEVERS = (1.0 / SCALING, 0.002, kin.WRIST_LENGTH + kin.TIP_LENGTH, kin.TIP_LENGTH, kin.TIP_LENGTH,
@@ -81,14 +88,21 @@ class Psm:
         self._cid = client._client     # PyBullet's client id, for the per-physics-step calls (no wrapper)
         self.body = self._build()
         self._vmax = physics.scaled_velocity_limits()
+        self._vmax_list = self._vmax.tolist()
         self._speed_caps = tuple(self._vmax) + (physics.JAW_MAX_VELOCITY,) * 2
         self._goal_targets = (0.0,) * 8   # joints 0–7 where the motors are headed (insertion scaled)
         self._q_target = np.zeros(6)     # where the arm is going (the last accepted command)
-        self._q_from = np.zeros(6)       # where the ramp towards it started
-        self._q_motor = np.zeros(6)      # what the motors are set to now
+        self._q_motor = [0.0] * 6        # what the motors are set to now
+        # The ramp of the ramped joints: where it started and the whole move (floats; the motors' targets along
+        # it are start + move × fraction, the arithmetic numpy did on arrays before, without its overhead).
+        self._ramp_start = [0.0] * len(_RAMPED_JOINTS)
+        self._ramp_move = [0.0] * len(_RAMPED_JOINTS)
         self._ramp_done = True
         self._jaw_target = 0.0
         self._jaw_stop: float | None = None
+        self._carried_weights = tuple(-self._spec["linkMasses"][j] * physics.GRAVITY[2] for j in _CARRIED_LINKS)
+        self._carried_lift = (0.0, 0.0, sum(self._carried_weights))
+        self._carried_com = (0.0, 0.0, 0.0)
 
     # ------------------------------------------------------------------ construction
     def _build(self) -> int:
@@ -146,7 +160,7 @@ class Psm:
         parents.append(6)
         joint_types.append(pb.JOINT_FIXED)
         axes.append([0, 0, 1])
-        masses.append(0.01)
+        masses.append(physics.PSM_LINK_MASS)
         cols.append(-1)
         viss.append(-1)
 
@@ -165,6 +179,7 @@ class Psm:
 
     def _create_body(self) -> int:
         c = self.client
+        self._ramp_limits_sent = False   # a fresh body's motors have no speed limits yet
         body = c.createMultiBody(**self._spec)
         n = len(self._spec["linkMasses"])
         for j in range(n):
@@ -188,6 +203,24 @@ class Psm:
         self.body = self._create_body()
         self._jaw_stop = None
 
+    def plan_gravity_compensation(self) -> None:
+        """Once per control period: where the weight of the links that move with the insertion (2–8) acts."""
+        states = pb.getLinkStates(self.body, _CARRIED_LINKS, physicsClientId=self._cid)
+        weights = self._carried_weights
+        total = sum(weights)
+        self._carried_com = tuple(sum(w * st[0][i] for w, st in zip(weights, states)) / total for i in range(3))
+
+    def compensate_gravity(self) -> None:
+        """Before a physics step: hold up the arm's weight, as the dVRK's gravity compensation does.
+
+        The weight of links 2–8 is applied back, upwards, at their common centre of mass (found once per control
+        period; it moves ≤ 5 cm scaled within one, a torque error < 1 % of the motors' limits): that cancels
+        gravity's torque on the outer yaw and pitch and its force on the insertion (links 0 and 1 sit on both axes
+        and feel none). The wrist joints still carry their own few grams, < 10 % of their motors' limit. One
+        PyBullet call per physics step: a force per link at its own centre cost ~40 % of a step."""
+        pb.applyExternalForce(self.body, 2, self._carried_lift, self._carried_com, pb.WORLD_FRAME,
+                              physicsClientId=self._cid)
+
     # ------------------------------------------------------------------ state
     def reset_joints(self, q, jaw: float) -> None:
         c = self.client
@@ -200,14 +233,13 @@ class Psm:
             c.resetJointState(self.body, j, sign * jaw / 2, 0.0)
         self._q_target = q.copy()
         self._set_goal_targets()
-        self._q_from = q.copy()
         self._ramp_done = True
         self._jaw_target = jaw
         self._apply_arm_targets(q)
         self._apply_jaw_target()
 
     def joint_positions(self) -> np.ndarray:
-        states = self.client.getJointStates(self.body, ARM_JOINTS)
+        states = pb.getJointStates(self.body, ARM_JOINTS, self._cid)
         q = np.array([s[0] for s in states])
         q[2] /= SCALING
         return q
@@ -235,12 +267,12 @@ class Psm:
         return bound
 
     def jaw_angle(self) -> float:
-        a, b = self.client.getJointStates(self.body, JAW_JOINTS)
+        a, b = pb.getJointStates(self.body, JAW_JOINTS, self._cid)
         return float(_JAW_SIGNS[0] * a[0] + _JAW_SIGNS[1] * b[0])
 
     def tip_pose(self) -> np.ndarray:
         """World pose of the tool tip (4×4, real metres), from the simulated joint positions."""
-        return self.world_T_rcm @ kin.psm_fk(self.joint_positions())
+        return self.world_T_rcm.dot(kin.psm_fk(self.joint_positions()))   # (.dot: see kinematics)
 
     def link_pose_world(self, link: int) -> tuple[np.ndarray, np.ndarray]:
         """(position in real metres, rotation matrix) of a link, as PyBullet simulates it."""
@@ -249,7 +281,7 @@ class Psm:
 
     # ------------------------------------------------------------------ commands
     def ik(self, tip_pose_world: np.ndarray) -> kin.IKResult:
-        return kin.psm_ik(self.rcm_T_world @ tip_pose_world)
+        return kin.psm_ik(self.rcm_T_world.dot(tip_pose_world))
 
     def command_tip(self, tip_pose_world: np.ndarray, ramp: bool = False) -> bool:
         """Set joint targets for a tip pose. Out-of-limit solutions are refused (the arm keeps its target).
@@ -261,13 +293,17 @@ class Psm:
             return False
         q = sol.q.copy()
         # Keep roll continuous: pick the 2π-equivalent closest to the current target within limits.
-        for cand in (q[3] - 2 * np.pi, q[3] + 2 * np.pi):
-            if kin.PSM_LOWER[3] <= cand <= kin.PSM_UPPER[3] and abs(cand - self._q_target[3]) < abs(q[3] - self._q_target[3]):
-                q[3] = cand
+        roll, current = float(q[3]), float(self._q_target[3])
+        for cand in (roll - 2 * np.pi, roll + 2 * np.pi):
+            if _ROLL_LOWER <= cand <= _ROLL_UPPER and abs(cand - current) < abs(roll - current):
+                roll = cand
+        q[3] = roll
         self._q_target = q
         self._set_goal_targets()
         if ramp:
-            self._q_from = self._q_motor.copy()
+            target = q.tolist()
+            self._ramp_start = [self._q_motor[k] for k in _RAMPED_JOINTS]
+            self._ramp_move = [target[k] - self._q_motor[k] for k in _RAMPED_JOINTS]
             self._ramp_done = False
             self._apply_arm_targets(q, _WRIST_JOINTS)
         else:
@@ -287,12 +323,26 @@ class Psm:
         f = (step + 1) / physics.RAMP_STEPS
         if f >= 1.0:
             self._ramp_done = True
-            self._apply_arm_targets(self._q_target)
+            # (The wrist's motors got their targets with the command, at the same time step: only the ramped
+            # joints change.)
+            self._apply_ramped_targets(self._q_target.tolist()[:3])
         else:
-            self._apply_arm_targets(self._q_from + (self._q_target - self._q_from) * f, _RAMPED_JOINTS)
+            self._apply_ramped_targets([a + d * f for a, d in zip(self._ramp_start, self._ramp_move)])
+
+    def _apply_ramped_targets(self, q: list) -> None:
+        """Set the motors of the ramped joints (0–2) to ``q``: one PyBullet command for the three once their
+        speed limits are set (the array form cannot send them, and the motors keep the last ones sent)."""
+        if not self._ramp_limits_sent:
+            self._apply_arm_targets(q, _RAMPED_JOINTS)
+            return
+        motor = self._q_motor
+        motor[0], motor[1], motor[2] = float(q[0]), float(q[1]), float(q[2])
+        pb.setJointMotorControlArray(self.body, _RAMPED_JOINTS, _POSITION_CONTROL,
+                                     [motor[0], motor[1], motor[2] * SCALING], _RAMP_ZEROS, _RAMP_FORCES,
+                                     _RAMP_POSITION_GAINS, _RAMP_VELOCITY_GAINS, self._cid)
 
     def command_jaw(self, angle: float) -> None:
-        angle = float(np.clip(angle, *kin.JAW_LIMITS))
+        angle = float(min(max(angle, kin.JAW_LIMITS[0]), kin.JAW_LIMITS[1]))
         self._jaw_target = angle if self._jaw_stop is None else max(angle, self._jaw_stop)
         self._apply_jaw_target()
 
@@ -303,23 +353,31 @@ class Psm:
             self._jaw_target = angle
             self._apply_jaw_target()
 
-    def _apply_arm_targets(self, q: np.ndarray, joints=ARM_JOINTS) -> None:
-        """Set the motors of ``joints`` (default all six) to ``q``'s values."""
-        self._q_motor[list(joints)] = np.asarray(q, dtype=np.float64)[list(joints)]
-        targets = self._q_motor.tolist()
-        targets[2] *= SCALING
+    def _apply_arm_targets(self, q, joints=ARM_JOINTS) -> None:
+        """Set the motors of ``joints`` (default all six) to ``q``'s values (``q`` indexed by joint, as ``joints``;
+        a list of the ramped joints' values when ``joints`` are those)."""
+        motor = self._q_motor
         for k in joints:
-            j = ARM_JOINTS[k]
-            pb.setJointMotorControl2(self.body, j, pb.POSITION_CONTROL, targetPosition=targets[k],
-                                     targetVelocity=0.0, positionGain=physics.PSM_POSITION_GAIN,
-                                     velocityGain=physics.PSM_VELOCITY_GAIN, force=physics.PSM_MAX_FORCE[k],
-                                     maxVelocity=float(self._vmax[k]), physicsClientId=self._cid)
+            motor[k] = float(q[k])
+        if joints[:3] == _RAMPED_JOINTS:
+            self._ramp_limits_sent = True
+        for k in joints:
+            # Positional arguments: PyBullet's keyword parsing costs more than the call itself.
+            pb.setJointMotorControl2(self.body, ARM_JOINTS[k], _POSITION_CONTROL,
+                                     motor[k] * SCALING if k == 2 else motor[k], 0.0, physics.PSM_MAX_FORCE[k],
+                                     physics.PSM_POSITION_GAIN, physics.PSM_VELOCITY_GAIN, self._vmax_list[k],
+                                     self._cid)
+
+    def reapply_motors(self) -> None:
+        """Re-issue the motor commands: PyBullet turns a motor's force limit into an impulse limit with the time
+        step current when the command is given, so after a change of time step they must be given again."""
+        self._apply_arm_targets(self._q_motor)
+        self._apply_jaw_target()
 
     def _apply_jaw_target(self) -> None:
-        c = self.client
         self._goal_targets = self._goal_targets[:6] + tuple(sign * self._jaw_target / 2 for sign in _JAW_SIGNS)
         for j, sign in zip(JAW_JOINTS, _JAW_SIGNS):
-            c.setJointMotorControl2(self.body, j, pb.POSITION_CONTROL, targetPosition=sign * self._jaw_target / 2,
-                                    targetVelocity=0.0,
-                                    positionGain=physics.PSM_POSITION_GAIN, velocityGain=physics.PSM_VELOCITY_GAIN,
-                                    force=physics.JAW_MAX_FORCE, maxVelocity=physics.JAW_MAX_VELOCITY)
+            # (targetPosition, targetVelocity, force, positionGain, velocityGain, maxVelocity, client)
+            pb.setJointMotorControl2(self.body, j, _POSITION_CONTROL, sign * self._jaw_target / 2, 0.0,
+                                     physics.JAW_MAX_FORCE, physics.PSM_POSITION_GAIN, physics.PSM_VELOCITY_GAIN,
+                                     physics.JAW_MAX_VELOCITY, self._cid)

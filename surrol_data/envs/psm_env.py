@@ -19,17 +19,32 @@ from surrol_data.envs import objects, physics
 from surrol_data.envs.adaptive_steps import SubstepPlanner
 from surrol_data.envs.ecm import SceneEndoscope
 from surrol_data.envs.grasp import Grasp
+from surrol_data.envs.numeric import clip, norm
+from surrol_data.envs.physics import pb
 from surrol_data.envs.psm import Psm
 from surrol_data.envs.units import ACTION_POSITION_M, ACTION_YAW_RAD, SCALING, SUCCESS_TOLERANCE_M
 
 # PSM1's remote centre of motion (real metres) and the tip workspace the tasks sample from.
 PSM1_RCM = np.array([0.507, 0.0736, 0.8524])
+# The RCM frame's yaw about the vertical. The reference's base placement (PSM1 −110°, PSM2 −70°) makes joint values
+# match the dVRK's for the same tip pose, and commands are Cartesian (the IK is exact either way), so the oracles
+# do not see it (all ≥ 99 % over 100 seeds with it). It is off until one effect is understood: with it the
+# simulated operators' outcomes change (NeedlePick novice 4 of 8 episodes instead of 7, seeds 1000–1007; the
+# MatchBoard expert loses seed 1000), with no command refused and no roll wrap-around.
+USE_REFERENCE_BASE_YAW = False
+REFERENCE_PSM1_BASE_YAW_RAD = float(np.deg2rad(-110.0))
+REFERENCE_PSM2_BASE_YAW_RAD = float(np.deg2rad(-70.0))
+PSM1_BASE_YAW_RAD = REFERENCE_PSM1_BASE_YAW_RAD if USE_REFERENCE_BASE_YAW else 0.0
+PSM2_BASE_YAW_RAD = REFERENCE_PSM2_BASE_YAW_RAD if USE_REFERENCE_BASE_YAW else 0.0
 WORKSPACE = np.array([[0.50, 0.60], [-0.05, 0.05], [0.675, 0.745]])
 # Commanded tip targets may leave the sampling workspace by this much (low side, high side): the reference's
 # margins (±0.02 xy, +0.08 z) are in its scaled units, i.e. ±4 mm / +16 mm real.
 WORKSPACE_MARGIN = np.array([[0.02, 0.02], [0.02, 0.02], [0.0, 0.08]]) / SCALING
+_TARGET_LOW = WORKSPACE[:, 0] - WORKSPACE_MARGIN[:, 0]
+_TARGET_HIGH = WORKSPACE[:, 1] + WORKSPACE_MARGIN[:, 1]
 # Tool-down tip frame: columns are tip x (wrist-yaw axis), tip y (jaw-opening direction), tip z (down).
 _TOOL_DOWN = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+_TOOL_DOWN_T = _TOOL_DOWN.T
 
 
 def tip_orientation_features(rotation: np.ndarray) -> np.ndarray:
@@ -38,11 +53,11 @@ def tip_orientation_features(rotation: np.ndarray) -> np.ndarray:
     Measuring relative to tool-down keeps the features continuous where plain world Euler angles of a
     downward-pointing frame would flip between ±π.
     """
-    return kin.euler_xyz(rotation @ _TOOL_DOWN.T)
+    return kin.euler_xyz(rotation.dot(_TOOL_DOWN_T))   # (.dot: see kinematics)
 
 
 def tool_down(yaw: float) -> np.ndarray:
-    return kin.rot_z3(yaw) @ _TOOL_DOWN
+    return kin.rot_z3(yaw).dot(_TOOL_DOWN)
 
 
 # Pitch mode: one unit of action tilts the tool 15° (the reference's pitch step), within ±90° of vertical.
@@ -69,6 +84,8 @@ def wrap_angle(a):
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
 
 
+
+
 class PsmEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 5}
 
@@ -88,6 +105,7 @@ class PsmEnv(gym.Env):
     # (benchmarks/physics_realism.py probes contacts there). Unset, it costs one attribute test per substep.
     substep_hook = None
     _closing: tuple = ()      # grasps whose jaws close during the current step (they may grip at any substep)
+    _features_memo: dict | None = None   # id(tip pose) → (pose, its orientation features), see _orientation_features
 
     def __init__(self, render_mode: str | None = None, render_size: tuple[int, int] = (480, 360),
                  camera: bool = False, camera_size: tuple[int, int] = (128, 128), camera_renderer: str = "tiny"):
@@ -97,7 +115,7 @@ class PsmEnv(gym.Env):
         self.render_size = render_size
         # Visual shapes cost most of a rebuild and matter only to a renderer: build them only when one is used.
         self.visual = render_mode is not None or bool(camera)
-        self.client = physics.make_client(gui=render_mode == "human")
+        self.client = physics.make_client(gui=render_mode == "human", renderer=self.visual)
         self._build_world()
         # camera=True: a still, non-colliding ECM over the scene whose endoscope image joins the observation.
         # camera_renderer: "tiny" (PyBullet's TinyRenderer) or "panda3d" (spotlight, shadows, anti-aliasing).
@@ -121,7 +139,7 @@ class PsmEnv(gym.Env):
 
     def _build_world(self) -> None:
         objects.make_table(self.client, visual=self.visual)
-        self.psm = Psm(self.client, PSM1_RCM, visual=self.visual)
+        self.psm = Psm(self.client, PSM1_RCM, PSM1_BASE_YAW_RAD, visual=self.visual)
         self.object_id = -1
         self.build_scene()
         self.goal_marker = objects.make_goal_marker(self.client, visual=self.visual)
@@ -164,7 +182,7 @@ class PsmEnv(gym.Env):
         return True
 
     def is_success(self, achieved_goal, desired_goal) -> np.ndarray:
-        d = np.linalg.norm(np.asarray(achieved_goal) - np.asarray(desired_goal), axis=-1)
+        d = norm(np.asarray(achieved_goal) - np.asarray(desired_goal))
         return d < SUCCESS_TOLERANCE_M
 
     # ------------------------------------------------------------------ Gymnasium API
@@ -207,7 +225,7 @@ class PsmEnv(gym.Env):
         return obs, self._info(obs)
 
     def step(self, action):
-        action = np.clip(np.asarray(action, dtype=np.float64).reshape(5), -1.0, 1.0)
+        action = clip(np.asarray(action, dtype=np.float64).reshape(5), -1.0, 1.0)
         self._apply_action(action)
         closing = not self.BLOCK_JAW and action[4] < 0
         self._closing = (self.grasp,) if closing else ()
@@ -217,8 +235,14 @@ class PsmEnv(gym.Env):
             self.grasp.update(closing=closing)
         obs = self._get_obs()
         info = self._info(obs)
-        reward = float(self.compute_reward(obs["achieved_goal"], obs["desired_goal"]))
-        return obs, reward, False, False, info
+        return obs, self._step_reward(obs, info), False, False, info
+
+    def _step_reward(self, obs: dict, info: dict) -> float:
+        """The step's reward: with the default sparse reward, is_success − 1 from the info's success (the same
+        test on the same goals, not made twice)."""
+        if type(self).compute_reward is PsmEnv.compute_reward:
+            return info["is_success"] - 1.0
+        return float(self.compute_reward(obs["achieved_goal"], obs["desired_goal"]))
 
     def render(self):
         if self.render_mode != "rgb_array":
@@ -251,21 +275,40 @@ class PsmEnv(gym.Env):
         hook = self.substep_hook
         watched = [g for g in closing if not g.attached]
         c = self.client
-        self._substeps.plan_tools(physics.TIME_STEP)
+        cid = c._client
+        step_simulation = pb.stepSimulation
+        planner = self._substeps
+        arms = [grasp.psm for grasp in planner.grasps]
+        planner.plan_tools(physics.TIME_STEP)
+        for psm in arms:
+            psm.plan_gravity_compensation()
+        k_now = 1
         for i in range(steps):
-            for grasp in self._substeps.grasps:
-                grasp.psm.ramp_targets(i)
-            k = self._substeps.refinement(physics.TIME_STEP)
-            if k > 1:
-                c.setPhysicsEngineParameter(fixedTimeStep=physics.TIME_STEP / k)
+            if i < physics.RAMP_STEPS:   # (a ramp ends at its last step: later calls would do nothing)
+                for psm in arms:
+                    psm.ramp_targets(i)
+            k = planner.refinement(physics.TIME_STEP)
+            if k != k_now:
+                k_now = k
+                self._set_time_step(physics.TIME_STEP / k)
             for _ in range(k):
-                c.stepSimulation()
+                for psm in arms:
+                    psm.compensate_gravity()
+                step_simulation(cid)
                 if watched:
                     watched = [g for g in watched if not g.grip_if_between()]
                 if hook is not None:
                     hook(self)
-            if k > 1:
-                c.setPhysicsEngineParameter(fixedTimeStep=physics.TIME_STEP)
+        if k_now != 1:
+            self._set_time_step(physics.TIME_STEP)
+
+    def _set_time_step(self, dt: float) -> None:
+        """Change the physics step and re-issue the motor commands: PyBullet turns a motor's force limit into an
+        impulse limit with the step current when the command is given, so under a k-times finer step the old
+        commands pushed k times harder than their limit (a tool pressed a block 5 mm into the board)."""
+        self.client.setPhysicsEngineParameter(fixedTimeStep=dt)
+        for grasp in self._substeps.grasps:
+            grasp.psm.reapply_motors()
 
     def tip_pose(self) -> np.ndarray:
         return self._tip
@@ -273,10 +316,10 @@ class PsmEnv(gym.Env):
     def _apply_action(self, action: np.ndarray) -> None:
         pose = self._tip
         target = pose[:3, 3] + action[:3] * ACTION_POSITION_M
-        target = np.clip(target, WORKSPACE[:, 0] - WORKSPACE_MARGIN[:, 0], WORKSPACE[:, 1] + WORKSPACE_MARGIN[:, 1])
-        features = tip_orientation_features(pose[:3, :3])
+        target = clip(target, _TARGET_LOW, _TARGET_HIGH)
+        features = self._tip_features()
         if self.ROTATION_MODE == "pitch":
-            angle = float(np.clip(features[0] + action[3] * ACTION_PITCH_RAD, -PITCH_LIMIT_RAD, PITCH_LIMIT_RAD))
+            angle = float(min(max(features[0] + action[3] * ACTION_PITCH_RAD, -PITCH_LIMIT_RAD), PITCH_LIMIT_RAD))
         else:
             angle = features[2] + (0.0 if self.FIXED_YAW else action[3] * ACTION_YAW_RAD)
         self.psm.command_tip(kin.pose_from(target, self.tool_rotation(angle)), ramp=True)
@@ -294,9 +337,27 @@ class PsmEnv(gym.Env):
         """Where the controlled angle sits in the observation (orientation roll term in pitch mode, else yaw)."""
         return 3 if self.ROTATION_MODE == "pitch" else 5
 
+    def _orientation_features(self, pose: np.ndarray) -> np.ndarray:
+        """tip_orientation_features of a tip pose the env keeps (the observation and the next action both need
+        them: computed once per pose object; the env's poses are fresh arrays, never changed). Read only."""
+        memo = self._features_memo
+        if memo is None:
+            memo = self._features_memo = {}
+        hit = memo.get(id(pose))
+        if hit is not None and hit[0] is pose:
+            return hit[1]
+        if len(memo) >= 4:
+            memo.clear()
+        features = tip_orientation_features(pose[:3, :3])
+        memo[id(pose)] = (pose, features)
+        return features
+
+    def _tip_features(self) -> np.ndarray:
+        return self._orientation_features(self._tip)
+
     def robot_state(self) -> np.ndarray:
         pose = self._tip
-        return np.concatenate([pose[:3, 3], tip_orientation_features(pose[:3, :3]), [self.psm.jaw_angle()]])
+        return np.concatenate([pose[:3, 3], self._tip_features(), [self.psm.jaw_angle()]])
 
     def observation_vector(self) -> np.ndarray:
         """The flat state: the arm's terms, then (object tasks) the object's. The bimanual base overrides it."""

@@ -56,6 +56,15 @@ _CLUTCH_TARGET_MM = 20.0     # and needs no precision (the Fitts width of a re-c
 # (the jaws only hold what lies between the blades, so closing a little high grasps nothing): the grasp
 # approach and the grasp aim this far below the plan's grasp point, and the surface stops the tool.
 _GRASP_PRESS_MM = 1.0
+# Placing a held object (a block into its groove, onto a peg) a person judges the object against its seat right
+# beside it, a relative judgement far finer than an absolute one: perception noise is this fraction of the usual,
+# the person aims for the task's tolerance (or half their usual accuracy, whichever is looser) and allows
+# themselves this many times their usual corrections.
+_PLACING_NOISE = 0.5
+_PLACING_ACCURACY = 0.5
+_PLACING_CORRECTIONS = 2
+# After letting go the person watches the object settle this many reaction times before judging the placement.
+_PLACEMENT_LOOK_REACTIONS = 2.0
 
 
 @dataclass
@@ -69,6 +78,8 @@ class _Subgoal:
     final: bool = False
     anchor: np.ndarray | None = None      # object grasp point and yaw when the target was set (object-relative)
     snapshot: bool = False                # a callable target fixed where it points when the step begins
+    placing: bool = False                 # brings a held object to where the next step lets go of it
+    object_yaw: float | None = None       # a placing step: the held object's yaw there as the plan intends it
 
     def moved_with_object(self, point: np.ndarray, yaw: float) -> "_Subgoal":
         """The same subgoal for an object that has moved since (after a failed grasp pushed it)."""
@@ -76,7 +87,8 @@ class _Subgoal:
             return self
         d_yaw = float(wrap_angle(yaw - self.anchor[3]))
         return _Subgoal(self.target + (point - self.anchor[:3]), None if self.yaw is None else self.yaw + d_yaw,
-                        self.jaw_closed, self.tol_mm, self.yaw_tol, self.final, np.array([*point, yaw]))
+                        self.jaw_closed, self.tol_mm, self.yaw_tol, self.final, np.array([*point, yaw]),
+                        self.snapshot, self.placing, self.object_yaw)
 
 
 class Team:
@@ -220,6 +232,8 @@ class SimulatedOperator(Device):
         self._hold_tip = np.zeros(3)
         self._grasp_segment: tuple[int, int] | None = None
         self._failures = 0
+        self._placements_failed = 0
+        self._placed_at: float | None = None   # when the jaw let go of the object at its seat (the last placement)
         self._depth_bias = p.depth_bias_mm
         self._clutch_from = self._clutch_until = -np.inf
         self._idle = False
@@ -240,7 +254,15 @@ class SimulatedOperator(Device):
             raise DeviceError(f"{type(self.env).__name__} publishes no plan (oracle_waypoints is empty) and is not a "
                               "reach task: the simulated operator cannot tell what to do in it")
         goals = []
+        closed = [self.view.uses_jaw and float(wp["jaw"]) < 0 for wp in plan]
+        grasp_yaw = None      # the tool's yaw where the plan last closed the jaw on the object
+        # The observation shows one object; where the plan grasps several (a drawer's handle, then a block; three
+        # jacks) it is not the one every placing step places, and its yaw says nothing about the seat.
+        one_object = sum(closed[i] and (i == 0 or not closed[i - 1]) for i in range(len(plan))) == 1
         for i, wp in enumerate(plan):
+            if closed[i] and (i == 0 or not closed[i - 1]):
+                grasp_yaw = wp.get("yaw")
+            placing = has_object and 0 < i < len(plan) - 1 and closed[i - 1] and closed[i] and not closed[i + 1]
             target = wp["target"]
             fixed = not callable(target)
             closes_here = float(wp["jaw"]) < 0 and (i == 0 or float(plan[i - 1]["jaw"]) >= 0)
@@ -255,7 +277,12 @@ class SimulatedOperator(Device):
                 yaw_tol=float(wp.get("yaw_tol", 0.05)),
                 final=i == len(plan) - 1,
                 anchor=anchor.copy() if fixed and anchor is not None else None,
-                snapshot=bool(wp.get("snapshot", False))))
+                snapshot=bool(wp.get("snapshot", False)),
+                placing=placing,
+                object_yaw=(float(wrap_angle(anchor[3] + float(wp["yaw"]) - float(grasp_yaw)))
+                            if placing and one_object and self.view.controls_angle and not self.view.pitch and "yaw" in wp
+                            and grasp_yaw is not None
+                            and anchor is not None else None)))
         return goals
 
     # ------------------------------------------------------------------ perceiving
@@ -271,14 +298,19 @@ class SimulatedOperator(Device):
         target = goal.target(self._obs) if callable(goal.target) else goal.target
         err = (np.asarray(target, np.float64) - state[_TIP]) * 1000.0
         spread = np.array([p.lateral_noise_mm, p.lateral_noise_mm, p.depth_noise_mm]) + p.weber_fraction * np.linalg.norm(err)
-        seen = err + self._rng.normal(0.0, 1.0, 3) * spread
+        careful = _PLACING_NOISE if goal.placing else 1.0
+        seen = err + self._rng.normal(0.0, 1.0, 3) * spread * careful
         seen[2] += self._depth_bias    # targets look higher than they are: the tool is stopped short
         # The scene shows the hand's motion up to the previous frame; the rest is still to come.
         pending = self._hand.remaining(t - self._period)
         seen -= self._believed_tool_motion(pending)
         if goal.yaw is None:
             return seen, 0.0
-        yaw_seen = float(wrap_angle(goal.yaw - state[_YAW])) + p.yaw_noise_rad * self._rng.normal()
+        # Placing a held object the person turns it until it looks aligned with its seat: the object's own yaw,
+        # whatever angle the jaws happened to take it at.
+        yaw_err = (goal.object_yaw - state[_OBJECT_YAW] if goal.object_yaw is not None and self._holding
+                   else goal.yaw - state[_YAW])
+        yaw_seen = float(wrap_angle(yaw_err)) + p.yaw_noise_rad * careful * self._rng.normal()
         m = self._model_mapping
         return seen, yaw_seen - pending[3] * m.rotation_scale * m.rotation_sign * self.view.angle_ratio * self.params.internal_gain
 
@@ -313,6 +345,9 @@ class SimulatedOperator(Device):
             if goal.final and self._info.get("is_success", 0.0):
                 self._finish(t, "done")
                 return
+            if self._placement_failed(t):
+                self._retry_placement(t)
+                continue
             jaw = self._jaw_progress(t)
             if jaw == "moving":
                 return
@@ -320,9 +355,9 @@ class SimulatedOperator(Device):
                 self._advance()
                 continue
             err, yaw_err = self._perceived_error(goal, t)
-            good_enough = (np.linalg.norm(err) < max(goal.tol_mm, p.accuracy_mm)
-                           and abs(yaw_err) < max(goal.yaw_tol, p.yaw_accuracy_rad))
-            if not goal.final and (self._corrections >= p.max_corrections or self._stalled(t)):
+            accuracy_mm, accuracy_rad, max_corrections = self._aim(goal)
+            good_enough = np.linalg.norm(err) < accuracy_mm and abs(yaw_err) < accuracy_rad
+            if not goal.final and (self._corrections >= max_corrections or self._stalled(t)):
                 good_enough = True   # the tool will not get closer (a contact, or the limit of the hand): accept
             if not good_enough or goal.final:
                 # (The plan's last step ends only when the scene shows success: keep correcting until then.)
@@ -337,6 +372,14 @@ class SimulatedOperator(Device):
                 self._set_jaw(t, goal.jaw_closed)
                 return
             self._advance()
+
+    def _aim(self, goal: _Subgoal) -> tuple[float, float, int]:
+        """When the person is satisfied with a step: (position error mm, angle error rad, corrections allowed)."""
+        p = self.params
+        if goal.placing:
+            return (max(goal.tol_mm, _PLACING_ACCURACY * p.accuracy_mm),
+                    max(goal.yaw_tol, _PLACING_ACCURACY * p.yaw_accuracy_rad), _PLACING_CORRECTIONS * p.max_corrections)
+        return max(goal.tol_mm, p.accuracy_mm), max(goal.yaw_tol, p.yaw_accuracy_rad), p.max_corrections
 
     def _advance(self) -> None:
         self._index += 1
@@ -383,7 +426,15 @@ class SimulatedOperator(Device):
             self._hold_height = float(self._obs["observation"][2])
             self._hold_tip = np.asarray(self._obs["observation"][_TIP], np.float64).copy()
             self._grasp_segment = self._segment_ending_at(self._index)
+        elif self._is_last_placement(self._index - 1):
+            self._placed_at = t
         return "settled"
+
+    def _is_last_placement(self, index: int) -> bool:
+        """Step ``index`` places the object that completes the task (one person checks it; no later placing step).
+        Two hands of one person hand over rather than place: theirs is not checked."""
+        return (self._team is None and self._grasp_segment is not None and 0 <= index and self._plan[index].placing
+                and not any(g.placing for g in self._plan[index + 1:]))
 
     def _segment_ending_at(self, close_index: int) -> tuple[int, int]:
         """The subgoals that lead to the grasp at ``close_index``: the open approach before it, and it."""
@@ -440,8 +491,10 @@ class SimulatedOperator(Device):
         delay = self._reaction() + self._hesitation_once(t, goal)
         # The orientation looks right: only the position is corrected. Where the angle is the goal itself (an
         # ECM roll), the person keeps turning until the scene shows success.
-        accuracy = 0.0 if goal.final and self.view.angle_is_goal else p.yaw_accuracy_rad
-        if abs(yaw_err) < max(goal.yaw_tol, accuracy):
+        tol, accuracy, _ = self._aim(goal)
+        if goal.final and self.view.angle_is_goal:
+            accuracy = goal.yaw_tol
+        if abs(yaw_err) < accuracy:
             yaw_err = 0.0
         hand = self._hand_motion_for(err_mm, yaw_err)
         now, room = self._hand.planned_pose(), self._room()
@@ -454,7 +507,6 @@ class SimulatedOperator(Device):
                 return
             hand = np.clip(end, -room, room) - now
         tool_mm = float(np.linalg.norm(self._believed_tool_motion(hand)))
-        tol = max(goal.tol_mm, p.accuracy_mm)
         duration = max(fitts_duration(tool_mm + 10.0 * abs(yaw_err), 2.0 * tol, p.fitts_intercept_s,
                                       p.fitts_slope_s_per_bit),
                        MIN_JERK_PEAK_SPEED * tool_mm / (p.speed_fraction * self._max_speed_mm_s),
@@ -499,6 +551,33 @@ class SimulatedOperator(Device):
         self._clutch_until = sub.end_s + self._period - 1e-9
         self._events.append((start, "clutch"))
         self._next_decision_s = self._clutch_until + 1e-9
+
+    # ------------------------------------------------------------------ failed placements
+    def _placement_failed(self, t: float) -> bool:
+        """The person let the object go at its seat and sees it did not go in (the task's success does not show)
+        once they have watched it settle."""
+        if self._placed_at is None or self._info.get("is_success", 0.0):
+            return False
+        return t - self._placed_at >= _PLACEMENT_LOOK_REACTIONS * self.params.reaction_time_s
+
+    def _retry_placement(self, t: float) -> None:
+        """Pick the object up again where it now lies and place it once more (or give up)."""
+        self._placements_failed += 1
+        self._placed_at = None
+        self._events.append((t, "placement-failed"))
+        if self._placements_failed >= self.params.max_grasp_attempts:
+            self._finish(t, "gave-up")
+            return
+        state = np.asarray(self._obs["observation"], np.float64)
+        point, yaw = state[_OBJECT_POINT], float(state[_OBJECT_YAW])
+        start, close = self._grasp_segment
+        release = next(i for i in range(close, len(self._plan)) if self._plan[i].placing) + 1
+        self._plan[start:release] = [g.moved_with_object(point, yaw) for g in self._plan[start:release]]
+        self._index = start
+        self._corrections = 0
+        self._fresh = True
+        self._last_move = None
+        self._next_decision_s = t + self._reaction() + self._hesitation(t)
 
     # ------------------------------------------------------------------ failed grasps
     def _monitor_grasp(self, t: float) -> None:

@@ -16,11 +16,14 @@ stroke the jaws close across) and the block's Euler angles.
 
 from __future__ import annotations
 
+import struct
+
 import numpy as np
 
 from surrol_data.envs import kinematics as kin
 from surrol_data.envs import match_board as mb
 from surrol_data.envs import physics
+from surrol_data.envs.numeric import norm
 from surrol_data.envs.psm_env import WORKSPACE, PsmEnv, wrap_angle
 
 OPEN, CLOSE = 0.5, -0.5
@@ -54,8 +57,17 @@ class GlyphBlockScene:
         yaw = float(rng.uniform(-self.BLOCK_YAW_RANGE, self.BLOCK_YAW_RANGE))
         mb.place_block(self.client, self.object_id, self.glyph, xy, surface_z, yaw)
 
+    _block_pose_memo: tuple | None = None
+
     def block_pose(self) -> tuple[np.ndarray, np.ndarray]:
-        return mb.block_pose(self.client, self.object_id, self.glyph)
+        # Asked for 3–5 times a step (observation, goal, grasp point, lift test): derived once per base pose that
+        # PyBullet reports, keyed by its exact bits.
+        position, quaternion = self.client.getBasePositionAndOrientation(self.object_id)
+        key = struct.pack("7d", *position, *quaternion) + self.glyph.encode()
+        memo = self._block_pose_memo
+        if memo is None or memo[0] != key:
+            memo = self._block_pose_memo = (key, *mb.block_pose_from(position, quaternion, self.glyph))
+        return memo[1].copy(), memo[2].copy()
 
     def grasp_point(self) -> np.ndarray:
         """Top of the stroke the jaws close across (world, real metres)."""
@@ -153,7 +165,7 @@ class MatchBoard(GlyphBlockScene, PsmEnv):
 
     def is_success(self, achieved_goal, desired_goal) -> np.ndarray:
         e = np.asarray(achieved_goal, dtype=np.float64) - np.asarray(desired_goal, dtype=np.float64)
-        return (np.linalg.norm(e[..., :2], axis=-1) < self.XY_TOLERANCE_M) & (np.abs(e[..., 2]) < self.HEIGHT_TOLERANCE_M)
+        return (norm(e[..., :2]) < self.XY_TOLERANCE_M) & (np.abs(e[..., 2]) < self.HEIGHT_TOLERANCE_M)
 
     def object_state(self):
         return self.block_object_state()

@@ -23,6 +23,7 @@ from gymnasium import spaces
 from surrol_data.envs import drawer as dr
 from surrol_data.envs import match_board as mb
 from surrol_data.envs import physics
+from surrol_data.envs.numeric import all_last, norm, vector_norm
 from surrol_data.envs.psm_env import WORKSPACE, PsmEnv, wrap_angle
 from surrol_data.envs.tasks.match_board import CLOSE, OPEN, GlyphBlockScene
 
@@ -91,7 +92,7 @@ class MatchBoardPanel(GlyphBlockScene, PsmEnv):
         if not self.grasp.attached:
             # The jaws grasp what they are at: the handle post or the block, whichever is nearer the tip.
             tip = self.tip_pose()[:3, 3]
-            at_handle = np.linalg.norm(self.handle_position() - tip) < np.linalg.norm(self.grasp_point() - tip)
+            at_handle = vector_norm(self.handle_position() - tip) < vector_norm(self.grasp_point() - tip)
             self.grasp.object_id, self.grasp.object_link = (self.drawer, 0) if at_handle else (self.object_id, -1)
             self.grasp.max_slip_m = self.HANDLE_MAX_SLIP_M if at_handle else physics.GRASP_MAX_SLIP_M
         return super().step(action)
@@ -107,8 +108,8 @@ class MatchBoardPanel(GlyphBlockScene, PsmEnv):
     def subtasks_done(self, achieved_goal, desired_goal) -> tuple[np.ndarray, np.ndarray]:
         """(drawer open, block in the target cell), each (...,)."""
         e = np.asarray(achieved_goal, dtype=np.float64) - np.asarray(desired_goal, dtype=np.float64)
-        opened = np.linalg.norm(e[..., 3:6], axis=-1) < self.OPEN_TOLERANCE_M
-        in_cell = np.all(np.abs(e[..., 0:3]) < self.CELL_TOLERANCE_M, axis=-1)
+        opened = norm(e[..., 3:6]) < self.OPEN_TOLERANCE_M
+        in_cell = all_last(np.abs(e[..., 0:3]) < self.CELL_TOLERANCE_M)
         return opened, in_cell
 
     def is_success(self, achieved_goal, desired_goal) -> np.ndarray:

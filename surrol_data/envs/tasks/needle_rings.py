@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from surrol_data.envs import objects, physics, ring_board
+from surrol_data.envs.numeric import norm
 from surrol_data.envs.bimanual_env import ArmStart, approach_direction
 from surrol_data.envs.physics import pb
 from surrol_data.envs.psm import matrix_to_quat
@@ -166,14 +167,14 @@ class NeedleRings(NeedleRegrasp):
 
     def is_success(self, achieved_goal, desired_goal) -> np.ndarray:
         a, d = np.asarray(achieved_goal, np.float64), np.asarray(desired_goal, np.float64)
-        close = np.linalg.norm(a[..., :3] - d[..., :3], axis=-1) < SUCCESS_TOLERANCE_M
+        close = norm(a[..., :3] - d[..., :3]) < SUCCESS_TOLERANCE_M
         return close & (np.abs(a[..., 3] - d[..., 3]) < 0.5)
 
     # ------------------------------------------------------------------ oracle
     def plan_oracle(self):
         c = self.nominal_centre
         start_turn = self.needle_turn()
-        p1_start = self._rotation_angle(0, self.tip_pose(0)[:3, :3])
+        p1_start = self._rotation_angle(0, self.tip_pose(0))
         p2 = self.HOLD_PITCH[1]
 
         def turned(arm: int, turn: float):

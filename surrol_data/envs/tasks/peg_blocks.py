@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from surrol_data.envs import peg_board, physics
+from surrol_data.envs.numeric import norm
 from surrol_data.envs.units import SUCCESS_TOLERANCE_M
 
 
@@ -64,4 +65,4 @@ class PegBlocksScene:
 
     def is_success(self, achieved_goal, desired_goal) -> np.ndarray:
         d = np.asarray(achieved_goal, dtype=np.float64) - np.asarray(desired_goal, dtype=np.float64)
-        return (np.linalg.norm(d[..., :2], axis=-1) < SUCCESS_TOLERANCE_M) & (np.abs(d[..., 2]) < self.HEIGHT_TOLERANCE_M)
+        return (norm(d[..., :2]) < SUCCESS_TOLERANCE_M) & (np.abs(d[..., 2]) < self.HEIGHT_TOLERANCE_M)

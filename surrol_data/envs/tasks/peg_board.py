@@ -19,6 +19,7 @@ import numpy as np
 
 from surrol_data.envs import kinematics as kin
 from surrol_data.envs import physics, ring_board
+from surrol_data.envs.numeric import norm
 from surrol_data.envs.psm_env import PsmEnv, approach_direction
 from surrol_data.envs.units import SUCCESS_TOLERANCE_M
 
@@ -82,7 +83,7 @@ class PegBoard(PsmEnv):
 
     def is_success(self, achieved_goal, desired_goal) -> np.ndarray:
         d = np.asarray(achieved_goal, dtype=np.float64) - np.asarray(desired_goal, dtype=np.float64)
-        return (np.linalg.norm(d[..., :2], axis=-1) < SUCCESS_TOLERANCE_M) & (np.abs(d[..., 2]) < self.HEIGHT_TOLERANCE_M)
+        return (norm(d[..., :2]) < SUCCESS_TOLERANCE_M) & (np.abs(d[..., 2]) < self.HEIGHT_TOLERANCE_M)
 
     # ------------------------------------------------------------------ oracle
     def plan_oracle(self):

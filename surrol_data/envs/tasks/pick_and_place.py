@@ -22,6 +22,7 @@ from gymnasium import spaces
 from surrol_data.envs import jacks
 from surrol_data.envs import kinematics as kin
 from surrol_data.envs import physics
+from surrol_data.envs.numeric import all_last
 from surrol_data.envs.psm_env import WORKSPACE, PsmEnv, wrap_angle
 
 OPEN, CLOSE = 0.5, -0.5
@@ -127,10 +128,10 @@ class PickAndPlace(PsmEnv):
         a = np.asarray(achieved_goal, dtype=np.float64).reshape(*np.shape(achieved_goal)[:-1], n, 3)
         d = np.asarray(desired_goal, dtype=np.float64).reshape(*np.shape(desired_goal)[:-1], n, 3)
         e = a - d
-        return (np.all(np.abs(e[..., :2]) < jacks.TRAY_INNER_HALF, axis=-1)) & (np.abs(e[..., 2]) < self.IN_TRAY_HEIGHT_M)
+        return all_last(np.abs(e[..., :2]) < jacks.TRAY_INNER_HALF) & (np.abs(e[..., 2]) < self.IN_TRAY_HEIGHT_M)
 
     def is_success(self, achieved_goal, desired_goal) -> np.ndarray:
-        return np.all(self.in_tray(achieved_goal, desired_goal), axis=-1)
+        return all_last(self.in_tray(achieved_goal, desired_goal))
 
     def _active_jack(self) -> int:
         placed = self.in_tray(self.achieved_goal(), self.goal)
