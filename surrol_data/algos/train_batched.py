@@ -76,6 +76,7 @@ def _check_members(cfgs: list[TrainConfig]) -> None:
 
 def _learner_config(cfg: TrainConfig) -> DDPGConfig:
     params = dict(cfg.learner_params)
+    params.pop("probe", None)  # warm_probe's diagnostic columns are a single-run feature; training is the same
     unknown = set(params) - set(DDPGConfig.__dataclass_fields__)
     if unknown:
         raise ValueError(f"ddpg: unknown parameter(s) {sorted(unknown)}; known: {sorted(DDPGConfig.__dataclass_fields__)}")
