@@ -329,7 +329,15 @@ def paper_protocol(args, console: Console) -> None:
         c = s_full.cycles
         env_eval = env_step_cpu * m * s_full.eval_episodes * s_full.max_episode_steps
         env_train = envs - env_eval
-        overlapped = max(learner * (c - 1) / c, (learner * (c - 1) / c + env_train * (c - 1) / c) / cores)
+        lo, eo = learner * (c - 1) / c, env_train * (c - 1) / c
+        if args.worker_nice > 0:   # the learner keeps a core, the workers share what is left
+            overlapped = max(lo, (lo + eo) / cores)
+        else:   # learner and n workers share the cores equally until one side is done
+            share = cores / (cfg0.schedule.n_envs + 1)
+            t_workers = eo / cfg0.schedule.n_envs / share
+            t_learner = lo / share
+            overlapped = (t_workers + lo - share * t_workers if t_workers < t_learner
+                          else t_learner + (eo - share * cfg0.schedule.n_envs * t_learner) / cores)
         epoch_phases = overlapped + learner / c + env_train / c / cores + env_eval / cores
         epoch_ideal = max(learner, (learner + envs) / cores)
         console.print(f"CPU per protocol epoch: learner {learner:.0f} s (one thread), env workers {envs:.0f} s "
@@ -366,7 +374,7 @@ def main() -> None:
                         help="--protocol paper: cycles per epoch (shorter epochs; collection and updates are scaled "
                              "back to the protocol's 20 in the extrapolation)")
     parser.add_argument("--offline-steps", type=int, default=None, help="--protocol paper: BC pre-training steps")
-    parser.add_argument("--worker-nice", type=int, default=5, help="--protocol paper: the env workers' niceness")
+    parser.add_argument("--worker-nice", type=int, default=0, help="--protocol paper: the env workers' niceness")
     parser.add_argument("--no-floor", action="store_true", help="--protocol paper: skip the compute-floor table")
     parser.add_argument("--seeds", type=int, nargs="*", default=[0])
     parser.add_argument("--out", type=Path, default=REPO / "runs" / "train_speed")
