@@ -305,9 +305,9 @@ def paper_protocol(args, console: Console) -> None:
                       f"{r['time_eval_s']:.1f}", f"{wall:.1f}", *cpus, busy, f"{steps / wall:.0f}",
                       f"{updates / r['time_update_s']:.0f}", f"{gflops:.0f}", f"{gflops / peak:.0%}", success)
     console.print(table)
-    console.print(f"whole timed training ({len(rows)} epochs incl. epoch 0): {batched_wall:.0f} s wall, learner "
-                  f"{learner_cpu:.0f} CPU s, env workers {envs_cpu:.0f} CPU s -> {(learner_cpu + envs_cpu) / batched_wall:.2f} "
-                  f"of {os.cpu_count()} cores busy")
+    console.print(f"whole timed training (setup and {len(rows)} epochs incl. epoch 0): {batched_wall:.0f} s wall, learner "
+                  f"{learner_cpu:.0f} CPU s, env workers {envs_cpu:.0f} CPU s (as reaped) -> "
+                  f"{(learner_cpu + envs_cpu) / batched_wall:.2f} of {os.cpu_count()} cores busy")
     if per_epoch:
         collect, update, evals, other = (statistics.median(x) for x in zip(*per_epoch))
         epoch_full = scale * (collect + update) + evals + other
@@ -324,11 +324,27 @@ def paper_protocol(args, console: Console) -> None:
         learner = statistics.median([r["time_cpu_learner_s"] for r, _ in timed]) * scale
         envs = env_step_cpu * m * (s_full.cycles * s_full.episodes_per_cycle + s_full.eval_episodes) * s_full.max_episode_steps
         cores = os.cpu_count() or 1
-        epoch_cpu = max(learner, (learner + envs) / cores)
+        # an epoch's phases on a quiet machine: cycles 1..C-1 overlap the learner (one thread, the workers
+        # niced) with the workers' episodes; the last cycle's updates run alone; evaluation is envs only
+        c = s_full.cycles
+        env_eval = env_step_cpu * m * s_full.eval_episodes * s_full.max_episode_steps
+        env_train = envs - env_eval
+        lo, eo = learner * (c - 1) / c, env_train * (c - 1) / c
+        if args.worker_nice > 0:   # the learner keeps a core, the workers share what is left
+            overlapped = max(lo, (lo + eo) / cores)
+        else:   # learner and n workers share the cores equally until one side is done
+            share = cores / (cfg0.schedule.n_envs + 1)
+            t_workers = eo / cfg0.schedule.n_envs / share
+            t_learner = lo / share
+            overlapped = (t_workers + lo - share * t_workers if t_workers < t_learner
+                          else t_learner + (eo - share * cfg0.schedule.n_envs * t_learner) / cores)
+        epoch_phases = overlapped + learner / c + env_train / c / cores + env_eval / cores
+        epoch_ideal = max(learner, (learner + envs) / cores)
         console.print(f"CPU per protocol epoch: learner {learner:.0f} s (one thread), env workers {envs:.0f} s "
-                      f"({env_step_cpu * 1e3:.2f} ms per env step) -> {epoch_cpu:.0f} s per epoch with all {cores} cores "
-                      f"busy; PROJECTED full study on a quiet machine ({m} runs x {full_epochs} epochs): "
-                      f"{full_epochs * epoch_cpu / 3600:.2f} h")
+                      f"({env_step_cpu * 1e3:.2f} ms per env step). PROJECTED full study on a quiet machine "
+                      f"({m} runs x {full_epochs} epochs): {full_epochs * epoch_phases / 3600:.2f} h with this path's "
+                      f"phases ({epoch_phases:.0f} s per epoch); {full_epochs * epoch_ideal / 3600:.2f} h if all "
+                      f"{cores} cores were busy all the time")
     if single_rows:
         online = [r for r in single_rows if r["epoch"] > 0]
         walls = [b["wall_s"] - a["wall_s"] for a, b in zip(single_rows, single_rows[1:])]
@@ -358,7 +374,7 @@ def main() -> None:
                         help="--protocol paper: cycles per epoch (shorter epochs; collection and updates are scaled "
                              "back to the protocol's 20 in the extrapolation)")
     parser.add_argument("--offline-steps", type=int, default=None, help="--protocol paper: BC pre-training steps")
-    parser.add_argument("--worker-nice", type=int, default=5, help="--protocol paper: the env workers' niceness")
+    parser.add_argument("--worker-nice", type=int, default=0, help="--protocol paper: the env workers' niceness")
     parser.add_argument("--no-floor", action="store_true", help="--protocol paper: skip the compute-floor table")
     parser.add_argument("--seeds", type=int, nargs="*", default=[0])
     parser.add_argument("--out", type=Path, default=REPO / "runs" / "train_speed")

@@ -52,9 +52,9 @@ def random_buffer(seed: int, episodes: int = 6) -> EpisodeReplay:
     return buf
 
 
-def members_and_singles(seeds):
-    singles = [DDPG(4, 3, 2, CFG, seed=s) for s in seeds]
-    ensemble = EnsembleDDPG(4, 3, 2, CFG, seeds)
+def members_and_singles(seeds, cfg=CFG):
+    singles = [DDPG(4, 3, 2, cfg, seed=s) for s in seeds]
+    ensemble = EnsembleDDPG(4, 3, 2, cfg, seeds)
     for i, s in enumerate(seeds):
         data = random_buffer(50 + s)
         for inputs in (singles[i].inputs, ensemble.inputs[i]):
@@ -62,9 +62,11 @@ def members_and_singles(seeds):
     return singles, ensemble
 
 
-def test_ensemble_members_start_and_learn_like_their_single_runs():
+@pytest.mark.parametrize("cfg", [CFG, dataclasses.replace(CFG, filtered_bc=True, joint_actor_step=False,
+                                                           actor_hold_updates=0)], ids=["joint", "filtered_bc"])
+def test_ensemble_members_start_and_learn_like_their_single_runs(cfg):
     seeds = [0, 3]
-    singles, ensemble = members_and_singles(seeds)
+    singles, ensemble = members_and_singles(seeds, cfg)
     obs = [{"observation": np.ones((2, 4), np.float32) * (i + 1), "desired_goal": np.zeros((2, 3), np.float32)}
            for i in range(2)]
     np.testing.assert_allclose(ensemble.act(obs, explore=False)[1], singles[1].act(obs[1], explore=False), atol=1e-6)
@@ -78,12 +80,12 @@ def test_ensemble_members_start_and_learn_like_their_single_runs():
                 assert m[key] == pytest.approx(t[key], rel=1e-3, abs=1e-5), (step, key)
     # members differ from each other (their own seeds), and a member's checkpoint is a single run's
     assert not np.allclose(ensemble.act(obs, False)[0], ensemble.act([obs[0], obs[0]], False)[1])
-    restored = DDPG(4, 3, 2, CFG, seed=99)
+    restored = DDPG(4, 3, 2, cfg, seed=99)
     restored.load_state_dict(ensemble.member_state_dict(1))
     np.testing.assert_allclose(restored.act(obs[1], explore=False), ensemble.act(obs, explore=False)[1], atol=1e-6)
     assert restored.online_updates == 3
     # and a single run's state loads into a member slot, optimiser moments included
-    other = EnsembleDDPG(4, 3, 2, CFG, [7, 8])
+    other = EnsembleDDPG(4, 3, 2, cfg, [7, 8])
     other.load_member_state_dict(0, ensemble.member_state_dict(1))
     np.testing.assert_allclose(other.act([obs[1], obs[1]], False)[0], ensemble.act(obs, False)[1], atol=1e-6)
     for key in ("actor_opt", "critic_opt"):
@@ -181,9 +183,10 @@ def _comparable(rows):
 
 
 def test_batched_runs_write_what_single_runs_write(tmp_path, reach_demos):
-    cfgs = [run_config(tmp_path / f"b{s}", reach_demos, s, critic_pretrain_steps=5) for s in (0, 1)]
+    warm = {"critic_pretrain_steps": 5, "freeze_normalizer": True, "filtered_bc": True}  # ddpgbc_warm's options
+    cfgs = [run_config(tmp_path / f"b{s}", reach_demos, s, **warm) for s in (0, 1)]
     batched = train_batched(cfgs, overlap=False, n_workers=0, progress=False)
-    single = train(run_config(tmp_path / "s1", reach_demos, 1, critic_pretrain_steps=5))
+    single = train(run_config(tmp_path / "s1", reach_demos, 1, **warm))
     for rows, cfg in zip(batched, cfgs):
         assert read_metrics(cfg.run_dir) == json.loads(json.dumps(rows))
         assert (Path(cfg.run_dir) / "policy.pt").is_file() and (Path(cfg.run_dir) / "checkpoint.pt").is_file()

@@ -177,6 +177,9 @@ class EnsembleDDPG:
         with torch.no_grad():
             for t, s in zip(self.actor_target.parameters(), self.actor.parameters()):
                 t.copy_(s)
+        if getattr(self.config, "freeze_normalizer", False):  # as DDPG.finish_pretraining: keep the demo statistics
+            for inputs in self.inputs:
+                inputs.frozen = True
 
     def pretrain_critic_step(self, demos: list[EpisodeReplay]) -> list[float]:
         """Offline critic warm-up: a TD step on a demo batch, bootstrapping through the pre-trained actor."""
@@ -202,7 +205,7 @@ class EnsembleDDPG:
             metrics.update(self._actor_step([(batch, False), (demo_batch, True)], scale))
         else:
             if scale > 0:
-                metrics["actor_loss"] = self._actor_step([(batch, False)], scale)["actor_loss"]
+                metrics.update(self._actor_step([(batch, False)], scale))
             if with_demos:
                 self._critic_step(demo_batch)
                 metrics.update({k: v for k, v in self._actor_step([(demo_batch, True)], scale).items()
@@ -252,7 +255,8 @@ class EnsembleDDPG:
         cfg = self.config
         pi = self._pi(self.actor, b["o"], b["g"])
         out = {}
-        if q_scale > 0:
+        filtered_bc = getattr(cfg, "filtered_bc", False)
+        if q_scale > 0 and not filtered_bc:
             self.critic.requires_grad_(False)  # only the action gradient is needed, not the critic's weights'
             objective = self._q(self.critic, b["o"], b["g"], pi)
             self.critic.requires_grad_(True)
@@ -262,6 +266,14 @@ class EnsembleDDPG:
                 objective = q_scale * objective
         else:
             objective = torch.zeros(pi.shape[:-1])
+        if filtered_bc and not bc:  # DDPG._actor_loss's filtered BC towards the replay batch's own actions
+            with torch.no_grad():
+                n = b["a"].shape[1]
+                both = self._q(self.critic_target, b["o"].repeat(1, 2, 1), b["g"].repeat(1, 2, 1),
+                               torch.cat([b["a"], pi.detach()], 1))
+                better = (both[:, :n] > both[:, n:]).float()
+            objective = objective - q_scale * cfg.bc_weight * better * (pi - b["a"]).pow(2).sum(-1) / self.act_dim
+            out = {"advantage_pass": better.mean(1)}
         if bc:
             per_sample_bc = (pi - b["a"]).pow(2).sum(-1) / self.act_dim
             if cfg.q_filter:

@@ -162,8 +162,7 @@ def _worker(conn, env_fn, n_envs: int, nice: int) -> None:
 class EnvPool:
     """``n_envs`` copies of ``env_id`` spread over ``n_workers`` spawned processes (in-process for 0 workers).
 
-    ``worker_nice`` lowers the workers' scheduling priority, so that the parent's updates (one thread that
-    the cycle waits for) get a core while the workers share what is left."""
+    ``worker_nice`` lowers the workers' scheduling priority (see :func:`~surrol_data.algos.train_batched.train_batched`)."""
 
     def __init__(self, env_id: str, max_episode_steps: int, n_envs: int, n_workers: int = 2, worker_nice: int = 0):
         from surrol_data.algos.train import make_env
@@ -261,4 +260,5 @@ class EnvPool:
             proc.join(timeout=5)
             if proc.is_alive():
                 proc.terminate()
+                proc.join(timeout=5)   # reaped, so its CPU time counts in the parent's RUSAGE_CHILDREN
         self._conns, self._procs = [], []

@@ -76,6 +76,7 @@ def _check_members(cfgs: list[TrainConfig]) -> None:
 
 def _learner_config(cfg: TrainConfig) -> DDPGConfig:
     params = dict(cfg.learner_params)
+    params.pop("probe", None)  # warm_probe's diagnostic columns are a single-run feature; training is the same
     unknown = set(params) - set(DDPGConfig.__dataclass_fields__)
     if unknown:
         raise ValueError(f"ddpg: unknown parameter(s) {sorted(unknown)}; known: {sorted(DDPGConfig.__dataclass_fields__)}")
@@ -98,12 +99,13 @@ class _Member:
 
 
 def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int = 2,
-                  progress: bool = True, worker_nice: int = 5) -> list[list[dict]]:
+                  progress: bool = True, worker_nice: int = 0) -> list[list[dict]]:
     """Train (or resume) the runs ``cfgs`` as one ensemble; returns every member's per-epoch rows.
 
     ``worker_nice``: the env workers' niceness. During a cycle the learner's updates are one thread the cycle
-    waits for, while the workers' episodes can use whatever CPU is left; with equal priority the scheduler
-    gives the learner only its share of the cores (2/3 of one with two workers on two cores)."""
+    waits for; with equal priority the scheduler gives it only its share of the cores (2/3 of one with two
+    workers on two cores). Niced workers would leave it a whole core on a quiet machine, but on a shared one
+    they lose to every other job: measured slower there (benchmarks/train_speed.py --worker-nice), so 0."""
     _check_members(cfgs)
     for cfg in cfgs:   # as single runs: an earlier run's folder is refused unless resumed or overwritten
         claim_run_dir(Path(cfg.run_dir), resume=cfg.resume, overwrite=cfg.overwrite)
