@@ -253,3 +253,24 @@ def test_simulated_operators_succeed(task, skill):
     # released more than ~8° off its groove rests on the edge, and the operator model does not re-grasp it) and 8/10.
     results = [_operator_episode(task, skill, 1000 + k) for k in range(4)]
     assert sum(results) >= (3 if skill == "expert" else 2), results
+
+
+def test_drawer_friction_keeps_its_force_in_refined_steps():
+    # The friction is a motor's force limit, which PyBullet fixes with the time step of the call: after the
+    # adaptive sub-steps refine the step it must be re-issued, else the drawer holds k times harder.
+    import pybullet as pb
+
+    e = gym.make("SurRoL/MatchBoardPanel-v0")
+    try:
+        u = e.unwrapped
+        e.reset(seed=0)
+        u._set_time_step(physics.TIME_STEP / 8)
+        start = dr.opening(u.client, u.drawer)
+        for _ in range(8 * physics.SUBSTEPS):   # 0.2 s
+            at = u.client.getLinkState(u.drawer, 0)[0]
+            u.client.applyExternalForce(u.drawer, 0, (0.0, -3.0 * dr.FRICTION_N, 0.0), at, pb.WORLD_FRAME)
+            u.client.stepSimulation()
+        u._set_time_step(physics.TIME_STEP)
+        assert dr.opening(u.client, u.drawer) - start > 1e-3   # three times its friction pulls it out
+    finally:
+        e.close()

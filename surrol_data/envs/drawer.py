@@ -145,9 +145,15 @@ def spawn_drawer(client, spec: dict, cabinet: Cabinet) -> int:
     # (Passing linearDamping or angularDamping in the same call makes PyBullet 3.2 drop the joint limits.)
     client.changeDynamics(body, 0, lateralFriction=physics.OBJECT_FRICTION, jointLowerLimit=0.0,
                           jointUpperLimit=(TRAVEL + LIMIT_BEYOND_STOP) * SCALING)
-    client.setJointMotorControl2(body, 0, pb.VELOCITY_CONTROL, targetVelocity=0.0, force=FRICTION_N)
+    apply_friction(client, body)
     client.setCollisionFilterPair(body, cabinet.body, 0, -1, 0)
     return body
+
+
+def apply_friction(client, drawer: int) -> None:
+    """The drawer's joint friction: a zero-velocity motor whose force limit is the friction force. PyBullet turns
+    the limit into an impulse with the time step current at the call, so it is re-issued when the step changes."""
+    client.setJointMotorControl2(drawer, 0, pb.VELOCITY_CONTROL, targetVelocity=0.0, force=FRICTION_N)
 
 
 def opening(client, drawer: int) -> float:

@@ -309,6 +309,11 @@ class PsmEnv(gym.Env):
         self.client.setPhysicsEngineParameter(fixedTimeStep=dt)
         for grasp in self._substeps.grasps:
             grasp.psm.reapply_motors()
+        self.reapply_scene_motors()
+
+    def reapply_scene_motors(self) -> None:
+        """Re-issue the motor commands of the scene's own joints after a change of time step (see
+        _set_time_step); a task with such joints (a drawer's friction) overrides this."""
 
     def tip_pose(self) -> np.ndarray:
         return self._tip

@@ -70,6 +70,9 @@ class MatchBoardPanel(GlyphBlockScene, PsmEnv):
             self.client.removeBody(self.drawer)
         self.drawer = dr.spawn_drawer(self.client, self._drawer_spec, self.cabinet)
 
+    def reapply_scene_motors(self) -> None:
+        dr.apply_friction(self.client, self.drawer)
+
     def reset_task(self, rng):
         self.target_cell = int(rng.integers(dr.CELLS))
         self.grasp.object_link = -1
