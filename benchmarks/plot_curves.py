@@ -143,7 +143,7 @@ def main() -> None:
     if probed:
         axes[1][0].set_ylabel("RMS action distance\nfrom the BC actor (demo states)")
         axes[1][-1].axis("off")
-        top = max(ax.get_ylim()[1] for ax in axes[1][:-1])
+        top = max(ax.get_ylim()[1] for ax in axes[1][:-1] if ax.lines)
         for ax in axes[1][:-1]:
             ax.grid(alpha=0.3)
             ax.set_ylim(0, top)
