@@ -170,6 +170,9 @@ def test_plot_curves_check_reads_the_issue_criteria():
     assert any("fell to 0.20" in f for f in check({"ddpgbc": baseline, "warm": dropped}))
     slower = [_criteria_of([0.6, 0.4, 0.5, 0.7, 0.8, 0.95] + [0.9] * 7)] * 3    # 10k steps > 8k
     assert any("median steps" in f for f in check({"ddpgbc": baseline, "warm": slower}))
+    one_never = kept[:2] + [_criteria_of([0.6] + [0.5] * 12)]                  # median still 8k
+    assert check({"ddpgbc": baseline, "warm": one_never}) == []
+    assert any("median steps" in f for f in check({"ddpgbc": baseline, "warm": kept[:1] + one_never[2:] * 2}))
     short = [_criteria_of([0.6, 0.5, 0.95])] * 3
     assert any("only 2 online epochs" in f for f in check({"ddpgbc": baseline, "warm": short}))
     never = [_criteria_of([0.8] + [0.5] * 12)] * 3
