@@ -99,12 +99,7 @@ def test_env_workers_act_as_their_single_runs_would(random_eps):
     generator: step by step, the actions its single run would take (same draws, same order)."""
     cfg = dataclasses.replace(CFG, random_eps=random_eps)
     seeds, steps, n = [0, 3], 6, 2
-    singles = [DDPG(4, 3, 2, cfg, seed=s) for s in seeds]
-    ensemble = EnsembleDDPG(4, 3, 2, cfg, seeds)
-    for i, s in enumerate(seeds):
-        data = random_buffer(50 + s)
-        for inputs in (singles[i].inputs, ensemble.inputs[i]):
-            inputs.update(data.obs.reshape(-1, 4), data.g.reshape(-1, 3))
+    singles, ensemble = members_and_singles(seeds, cfg)
     rng = np.random.default_rng(9)
     obs, goals = rng.standard_normal((steps, len(seeds), n, 4)), rng.standard_normal((steps, len(seeds), n, 3))
     actor = SnapshotActor(ensemble.snapshot().for_envs(np.repeat(np.arange(len(seeds)), n)))
