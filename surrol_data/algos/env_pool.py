@@ -25,6 +25,8 @@ from functools import partial
 
 import numpy as np
 
+from surrol_data.algos.normalizer import standardize
+
 INFO_KEYS = ("is_success", "tip_position", "jaw_angle")
 
 
@@ -64,8 +66,8 @@ class SnapshotActor:
 
     def __call__(self, obs: np.ndarray, goal: np.ndarray) -> np.ndarray:
         s, torch = self.s, self.torch
-        o = np.clip((np.asarray(obs, np.float64) - s.obs_mean) / s.obs_std, -s.clip, s.clip).astype(np.float32)
-        g = np.clip((np.asarray(goal, np.float64) - s.goal_mean) / s.goal_std, -s.clip, s.clip).astype(np.float32)
+        o = standardize(obs, s.obs_mean, s.obs_std, s.clip)
+        g = standardize(goal, s.goal_mean, s.goal_std, s.clip)
         x = torch.from_numpy(np.concatenate([o, g], -1)).unsqueeze(1)
         with torch.no_grad():
             for k, (w, b) in enumerate(zip(self.w, self.b)):

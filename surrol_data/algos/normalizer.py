@@ -18,6 +18,12 @@ import numpy as np
 import torch
 
 
+def standardize(x, mean: np.ndarray, std: np.ndarray, clip: float) -> np.ndarray:
+    """clip((x − mean) / std, −clip, +clip) as float32, computed in float64 (``mean``/``std`` broadcast against
+    ``x``: one row of statistics, or one per row of ``x``)."""
+    return np.clip((np.asarray(x, np.float64) - mean) / std, -clip, clip).astype(np.float32)
+
+
 class Normalizer:
     def __init__(self, size: int, eps: float = 0.01, clip: float = 5.0):
         if size <= 0:
@@ -44,7 +50,7 @@ class Normalizer:
         x = np.asarray(x, np.float64)
         if x.shape[-1:] != (self.size,):
             raise ValueError(f"Normalizer expects a last dimension of {self.size}, got shape {x.shape}")
-        return np.clip((x - self.mean) / self.std, -self.clip, self.clip).astype(np.float32)
+        return standardize(x, self.mean, self.std, self.clip)
 
     def state_dict(self) -> dict:
         # Tensors and plain scalars only, so a checkpoint holding this loads with torch.load(weights_only=True).

@@ -51,14 +51,18 @@ _EYE4 = np.eye(4)
 _EYE3 = np.eye(3)
 
 
-def _rot_z(a: float) -> np.ndarray:
+def _set_rot_z(m: np.ndarray, a: float) -> np.ndarray:
+    """Write a rotation by ``a`` about z into the upper-left 2×2 block of identity matrix ``m``; returns ``m``."""
     c, s = math.cos(a), math.sin(a)
-    m = _EYE4.copy()
     m[0, 0] = c
     m[0, 1] = -s
     m[1, 0] = s
     m[1, 1] = c
     return m
+
+
+def _rot_z(a: float) -> np.ndarray:
+    return _set_rot_z(_EYE4.copy(), a)
 
 
 def _trans(x: float = 0.0, z: float = 0.0) -> np.ndarray:
@@ -167,13 +171,7 @@ def euler_xyz(rotation: np.ndarray) -> np.ndarray:
 
 
 def rot_z3(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    m = _EYE3.copy()
-    m[0, 0] = c
-    m[0, 1] = -s
-    m[1, 0] = s
-    m[1, 1] = c
-    return m
+    return _set_rot_z(_EYE3.copy(), a)
 
 
 def tool_down_rotation(yaw: float) -> np.ndarray:

@@ -84,8 +84,6 @@ def wrap_angle(a):
     return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
 
 
-
-
 class PsmEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 5}
 
@@ -274,8 +272,7 @@ class PsmEnv(gym.Env):
         (see adaptive_steps); the grasps of closing jaws in ``closing`` may grip after any of them."""
         hook = self.substep_hook
         watched = [g for g in closing if not g.attached]
-        c = self.client
-        cid = c._client
+        cid = self.client._client
         step_simulation = pb.stepSimulation
         planner = self._substeps
         arms = [grasp.psm for grasp in planner.grasps]
