@@ -93,6 +93,25 @@ def test_ensemble_members_start_and_learn_like_their_single_runs(cfg):
         assert all(torch.equal(a[i]["exp_avg_sq"], b[i]["exp_avg_sq"]) for i in b)
 
 
+def test_ensemble_updates_do_not_depend_on_the_learners_thread_count():
+    """The batched path widens the learner to the cores the env workers leave idle, at moments that depend on
+    timing; that is only sound while torch's CPU kernels give bit-identical updates for any thread count.
+    Full-size networks and batches, so the kernels really split their work."""
+    cfg = dataclasses.replace(CFG, hidden_sizes=(256, 256, 256), batch_size=128, demo_batch_size=128)
+
+    def trained(threads_at) -> list[torch.Tensor]:
+        _, ensemble = members_and_singles([0, 1, 2], cfg)
+        for step in range(4):
+            torch.set_num_threads(threads_at(step))
+            ensemble.update([random_buffer(s) for s in (0, 1, 2)], [random_buffer(100 + s) for s in (0, 1, 2)])
+        return [p.detach().clone() for net in (ensemble.actor, ensemble.critic, ensemble.critic_target)
+                for p in net.parameters()]
+
+    one, two, mixed = trained(lambda _: 1), trained(lambda _: 2), trained(lambda step: 1 + step % 2)
+    assert all(torch.equal(a, b) for a, b in zip(one, two))
+    assert all(torch.equal(a, b) for a, b in zip(one, mixed))
+
+
 @pytest.mark.parametrize("random_eps", [0.0, 0.3])
 def test_env_workers_act_as_their_single_runs_would(random_eps):
     """Workers act from a snapshot of the actors, with every member's exploration drawn up front from its own

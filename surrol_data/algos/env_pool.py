@@ -246,6 +246,12 @@ class EnvPool:
         self._pending = None
         return {k: np.concatenate([p[k] for p in parts], 1) for k in parts[0]}
 
+    def busy_workers(self) -> int:
+        """How many workers are still playing the started rollout (0 when none is pending, or in-process)."""
+        if self._pending is None or self._local is not None:
+            return 0
+        return sum(not conn.poll() for conn in self._conns)
+
     def worker_cpu_seconds(self) -> float:
         """CPU seconds the worker processes have used so far, as of their last reply (0 in-process)."""
         return float(sum(self._worker_cpu))

@@ -98,14 +98,33 @@ class _Member:
         self.process: dict = {}
 
 
+class _LearnerThreads:
+    """The learner's torch threads: ``base`` while env workers play, and every core they leave idle otherwise.
+
+    A cycle's updates take longer than its episodes (paper protocol, 12 members: ~2 s of play, ~6 s of updates
+    on one thread), so with a fixed single thread one core idled for most of every cycle. Checked before every
+    update, so the learner widens as soon as the workers are done. Results do not depend on it: torch's CPU
+    kernels give bit-identical updates for any thread count (tests/test_batched.py keeps that true)."""
+
+    def __init__(self, base: int, pool: EnvPool):
+        self.base, self.pool, self.current = base, pool, torch.get_num_threads()
+        self.cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+    def adjust(self) -> None:
+        n = max(self.base, self.cores - self.pool.busy_workers())
+        if n != self.current:
+            torch.set_num_threads(n)
+            self.current = n
+
+
 def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int = 2,
                   progress: bool = True, worker_nice: int = 0) -> list[list[dict]]:
     """Train (or resume) the runs ``cfgs`` as one ensemble; returns every member's per-epoch rows.
 
-    ``worker_nice``: the env workers' niceness. During a cycle the learner's updates are one thread the cycle
-    waits for; with equal priority the scheduler gives it only its share of the cores (2/3 of one with two
-    workers on two cores). Niced workers would leave it a whole core on a quiet machine, but on a shared one
-    they lose to every other job: measured slower there (benchmarks/train_speed.py --worker-nice), so 0."""
+    ``worker_nice``: the env workers' niceness. While they play, the learner's updates are one thread the
+    cycle waits for; with equal priority the scheduler gives it only its share of the cores (2/3 of one with
+    two workers on two cores). Niced workers would leave it a whole core on a quiet machine, but on a shared
+    one they lose to every other job: measured slower there (benchmarks/train_speed.py --worker-nice), so 0."""
     _check_members(cfgs)
     for cfg in cfgs:   # as single runs: an earlier run's folder is refused unless resumed or overwritten
         claim_run_dir(Path(cfg.run_dir), resume=cfg.resume, overwrite=cfg.overwrite)
@@ -155,6 +174,7 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
     pool = EnvPool(first.env_id, s.max_episode_steps, len(members) * per_member_envs, n_workers, worker_nice)
     demo_buffers = [m.demo_buffer for m in members] if members[0].demo_buffer is not None else None
     replays = [m.replay for m in members]
+    threads = _LearnerThreads(s.torch_threads, pool)
 
     cpu = {"learner": time.process_time(), "envs": pool.worker_cpu_seconds()}
 
@@ -194,6 +214,7 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
         # 2. offline phase (epoch 0)
         if not members[0].rows:
             t0 = time.perf_counter()
+            threads.adjust()   # no rollout yet: every core
             losses = [learner.pretrain_step(demo_buffers) for _ in range(s.offline_steps)] if demo_buffers else []
             learner.finish_pretraining()
             critic_losses = [learner.pretrain_critic_step(demo_buffers)
@@ -211,13 +232,15 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
             t0 = time.perf_counter()
             for m in members:
                 m.state["epoch"] += 1
-            extras = _online_epoch(members, learner, pool, replays, demo_buffers, overlap, write_checkpoints)
+            extras = _online_epoch(members, learner, pool, replays, demo_buffers, overlap, write_checkpoints,
+                                   threads)
             finish_epoch(extras, t0)
             bar.update(1)
             bar.set_postfix(success=" ".join(f"{m.rows[-1]['success_rate']:.2f}" for m in members), refresh=False)
         write_checkpoints()
     finally:
         write_checkpoints()   # an interrupted epoch leaves the last finished one's checkpoints, complete
+        torch.set_num_threads(s.torch_threads)
         bar.close()
         pool.close()
         for m in members:
@@ -229,7 +252,7 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
 
 
 def _online_epoch(members: list[_Member], learner: EnsembleDDPG, pool: EnvPool, replays, demo_buffers,
-                  overlap: bool, while_first_rollout) -> list[dict]:
+                  overlap: bool, while_first_rollout, threads: _LearnerThreads) -> list[dict]:
     s = members[0].cfg.schedule
     per_member = s.episodes_per_cycle
     train_success = [[] for _ in members]
@@ -239,6 +262,7 @@ def _online_epoch(members: list[_Member], learner: EnsembleDDPG, pool: EnvPool, 
     def run_updates(n: int) -> None:
         t = time.perf_counter()
         for _ in range(n):
+            threads.adjust()
             for i, row in enumerate(learner.update(replays, demo_buffers)):
                 metrics[i].append(row)
         for m in members:
