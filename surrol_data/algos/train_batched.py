@@ -43,6 +43,7 @@ from surrol_data.algos.ddpg import DDPGConfig
 from surrol_data.algos.demos import load_demos
 from surrol_data.algos.ensemble import EnsembleDDPG
 from surrol_data.algos.env_pool import EnvPool
+from surrol_data.algos.learner_threads import LearnerThreads
 from surrol_data.algos.replay import EpisodeReplay, rng_from_tensor, rng_state_tensor
 from surrol_data.algos.train import (CHECKPOINT_FORMAT, EVAL_SEED_BASE, TRAIN_SEED_STRIDE, RunLog, TrainConfig,
                                      _check, _config_json, _write_json, claim_run_dir, make_env)
@@ -96,25 +97,6 @@ class _Member:
         self.rows: list[dict] = []
         self.log: RunLog | None = None
         self.process: dict = {}
-
-
-class _LearnerThreads:
-    """The learner's torch threads: ``base`` while env workers play, and every core they leave idle otherwise.
-
-    A cycle's updates take longer than its episodes (paper protocol, 12 members: ~2 s of play, ~6 s of updates
-    on one thread), so with a fixed single thread one core idled for most of every cycle. Checked before every
-    update, so the learner widens as soon as the workers are done. Results do not depend on it: torch's CPU
-    kernels give bit-identical updates for any thread count (tests/test_batched.py keeps that true)."""
-
-    def __init__(self, base: int, pool: EnvPool):
-        self.base, self.pool, self.current = base, pool, torch.get_num_threads()
-        self.cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-
-    def adjust(self) -> None:
-        n = max(self.base, self.cores - self.pool.busy_workers())
-        if n != self.current:
-            torch.set_num_threads(n)
-            self.current = n
 
 
 def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int = 2,
@@ -174,7 +156,7 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
     pool = EnvPool(first.env_id, s.max_episode_steps, len(members) * per_member_envs, n_workers, worker_nice)
     demo_buffers = [m.demo_buffer for m in members] if members[0].demo_buffer is not None else None
     replays = [m.replay for m in members]
-    threads = _LearnerThreads(s.torch_threads, pool)
+    threads = LearnerThreads(s.torch_threads, pool.busy_workers)
 
     cpu = {"learner": time.process_time(), "envs": pool.worker_cpu_seconds()}
 
@@ -214,8 +196,9 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
         # 2. offline phase (epoch 0)
         if not members[0].rows:
             t0 = time.perf_counter()
-            threads.adjust()   # no rollout yet: every core
-            losses = [learner.pretrain_step(demo_buffers) for _ in range(s.offline_steps)] if demo_buffers else []
+            bc_threads = LearnerThreads(s.torch_threads, pool.busy_workers)  # its own timings: a BC step is cheaper
+            losses = [bc_threads.timed(learner.pretrain_step, demo_buffers) for _ in range(s.offline_steps)] \
+                if demo_buffers else []
             learner.finish_pretraining()
             critic_losses = [learner.pretrain_critic_step(demo_buffers)
                              for _ in range(learner.config.critic_pretrain_steps)] if demo_buffers else []
@@ -252,7 +235,7 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
 
 
 def _online_epoch(members: list[_Member], learner: EnsembleDDPG, pool: EnvPool, replays, demo_buffers,
-                  overlap: bool, while_first_rollout, threads: _LearnerThreads) -> list[dict]:
+                  overlap: bool, while_first_rollout, threads: LearnerThreads) -> list[dict]:
     s = members[0].cfg.schedule
     per_member = s.episodes_per_cycle
     train_success = [[] for _ in members]
@@ -262,8 +245,7 @@ def _online_epoch(members: list[_Member], learner: EnsembleDDPG, pool: EnvPool, 
     def run_updates(n: int) -> None:
         t = time.perf_counter()
         for _ in range(n):
-            threads.adjust()
-            for i, row in enumerate(learner.update(replays, demo_buffers)):
+            for i, row in enumerate(threads.timed(learner.update, replays, demo_buffers)):
                 metrics[i].append(row)
         for m in members:
             m.state["updates"] += n
