@@ -3,6 +3,8 @@
     python benchmarks/train_speed.py --seeds 0 1 2                 # train 3 seeds (sequentially), then the table
     python benchmarks/train_speed.py --runs runs/NeedlePick/ddpgbc/script/seed*   # only summarise finished runs
     python benchmarks/train_speed.py --protocol paper --epochs 3  # the batched path on the paper's 12-run study
+    python benchmarks/train_speed.py --protocol paper --threads-ab --no-floor --epochs 3 --cycles 5 \
+        --offline-steps 50 -- experiment.eval_episodes=4      # learner at 1 thread vs widening to idle cores
 
 ``--protocol paper`` first measures this machine's compute floor for the Table I study in CPU time (one env step
 on one core, one batched 12-run update, the matmul peak; valid on a shared machine), then trains the study
@@ -215,6 +217,31 @@ def compute_floor(console: Console, cfg0, m: int, flops: float, peak: float, ful
     console.print(table)
 
 
+def threads_ab(console: Console, jobs: list, args) -> None:
+    """The learner at its configured threads (A) against widening to the cores the workers leave idle (B): the
+    same ensemble trained twice, A, B, A, B, … for ``--ab-rounds`` rounds, each from scratch; per-epoch medians."""
+    from surrol_data.algos.train_batched import train_batched
+
+    per = {False: [], True: []}
+    for _ in range(args.ab_rounds):
+        for widen in (False, True):
+            rows = train_batched(jobs, overlap=not args.no_overlap, n_workers=jobs[0].schedule.n_envs,
+                                 progress=True, widen_threads=widen)[0]
+            for prev, r in zip(rows, rows[1:]):
+                per[widen].append((r["wall_s"] - prev["wall_s"], r["time_update_s"], r["time_collect_s"],
+                                   r["time_eval_s"]))
+    table = Table(title=f"learner threads, {len(jobs)} runs, {jobs[0].schedule.cycles} cycles per epoch, "
+                        f"{args.ab_rounds} rounds of A then B (medians over online epochs)")
+    for c in ("learner", "epochs", "epoch s", "update s", "collect s", "eval s", "epoch time vs A"):
+        table.add_column(c, justify="right")
+    base = statistics.median(e[0] for e in per[False])
+    for widen, label in ((False, f"A: fixed at torch_threads={jobs[0].schedule.torch_threads}"),
+                         (True, "B: widens to idle cores when faster")):
+        med = [statistics.median(e[k] for e in per[widen]) for k in range(4)]
+        table.add_row(label, str(len(per[widen])), *(f"{x:.1f}" for x in med), f"{med[0] / base:.2f}x")
+    console.print(table)
+
+
 def paper_protocol(args, console: Console) -> None:
     import resource
 
@@ -262,6 +289,9 @@ def paper_protocol(args, console: Console) -> None:
     if not args.no_floor:
         compute_floor(console, full, m, flops, peak, full_epochs)
 
+    if args.threads_ab:
+        threads_ab(console, jobs, args)
+        return
     cpu0, kids0, t0 = time.process_time(), resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
     import inspect
 
@@ -376,6 +406,9 @@ def main() -> None:
     parser.add_argument("--offline-steps", type=int, default=None, help="--protocol paper: BC pre-training steps")
     parser.add_argument("--worker-nice", type=int, default=0, help="--protocol paper: the env workers' niceness")
     parser.add_argument("--no-floor", action="store_true", help="--protocol paper: skip the compute-floor table")
+    parser.add_argument("--threads-ab", action="store_true",
+                        help="--protocol paper: only compare the learner at fixed threads with widening to idle cores")
+    parser.add_argument("--ab-rounds", type=int, default=2, help="--threads-ab: rounds of A then B")
     parser.add_argument("--seeds", type=int, nargs="*", default=[0])
     parser.add_argument("--out", type=Path, default=REPO / "runs" / "train_speed")
     parser.add_argument("--demos", type=Path, default=REPO / "datasets" / "NeedlePick_script")

@@ -69,3 +69,10 @@ def test_it_follows_the_machine_when_the_load_changes():
     assert run(machine, threads, 4 * REMEASURE_EVERY)[-2 * REMEASURE_EVERY:].count(1) > 1.5 * REMEASURE_EVERY
     machine.seconds_per_update = {1: 1.0, 2: 0.6}   # and ends
     assert run(machine, threads, 4 * REMEASURE_EVERY)[-2 * REMEASURE_EVERY:].count(2) > 1.5 * REMEASURE_EVERY
+
+
+def test_widen_false_keeps_the_base_threads_and_measures_nothing():
+    machine = FakeMachine({1: 1.0, 2: 0.5})
+    threads = LearnerThreads(1, lambda: 0, cores=2, clock=machine.clock, widen=False)
+    assert set(run(machine, threads, 20)) == {1}
+    assert threads.count == {}

@@ -35,10 +35,11 @@ class LearnerThreads:
     """Run every update through :meth:`timed` (or wrap it in :meth:`before_update` / :meth:`after_update`).
 
     ``busy_workers``: a callable, how many env workers are still playing; ``base``: the threads while they all
-    play (the config's ``torch_threads``)."""
+    play (the config's ``torch_threads``); ``widen=False``: always ``base``."""
 
-    def __init__(self, base: int, busy_workers, cores: int | None = None, clock=time.perf_counter):
-        self.base, self.busy_workers, self.clock = base, busy_workers, clock
+    def __init__(self, base: int, busy_workers, cores: int | None = None, clock=time.perf_counter,
+                 widen: bool = True):
+        self.base, self.busy_workers, self.clock, self.widen = base, busy_workers, clock, widen
         self.cores = cores or available_cores()
         self.current = torch.get_num_threads()
         self.mean: dict[int, float] = {}     # threads -> running mean seconds per idle-phase update
@@ -54,7 +55,7 @@ class LearnerThreads:
             self.after_update()
 
     def before_update(self) -> None:
-        wide = self.cores - self.busy_workers()
+        wide = self.cores - self.busy_workers() if self.widen else self.base
         n = self._choose(wide) if wide > self.base else self.base
         self._timing = (n, self.clock()) if wide > self.base else None
         if n != self.current:

@@ -100,8 +100,11 @@ class _Member:
 
 
 def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int = 2,
-                  progress: bool = True, worker_nice: int = 0) -> list[list[dict]]:
+                  progress: bool = True, worker_nice: int = 0, widen_threads: bool = True) -> list[list[dict]]:
     """Train (or resume) the runs ``cfgs`` as one ensemble; returns every member's per-epoch rows.
+
+    ``widen_threads``: let the learner use the cores the workers leave idle when that is measured faster
+    (:mod:`~surrol_data.algos.learner_threads`); False keeps it at ``torch_threads`` (the benchmark's baseline).
 
     ``worker_nice``: the env workers' niceness. While they play, the learner's updates are one thread the
     cycle waits for; with equal priority the scheduler gives it only its share of the cores (2/3 of one with
@@ -156,7 +159,7 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
     pool = EnvPool(first.env_id, s.max_episode_steps, len(members) * per_member_envs, n_workers, worker_nice)
     demo_buffers = [m.demo_buffer for m in members] if members[0].demo_buffer is not None else None
     replays = [m.replay for m in members]
-    threads = LearnerThreads(s.torch_threads, pool.busy_workers)
+    threads = LearnerThreads(s.torch_threads, pool.busy_workers, widen=widen_threads)
 
     cpu = {"learner": time.process_time(), "envs": pool.worker_cpu_seconds()}
 
@@ -196,7 +199,8 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
         # 2. offline phase (epoch 0)
         if not members[0].rows:
             t0 = time.perf_counter()
-            bc_threads = LearnerThreads(s.torch_threads, pool.busy_workers)  # its own timings: a BC step is cheaper
+            # its own timings: a BC step is cheaper than an update
+            bc_threads = LearnerThreads(s.torch_threads, pool.busy_workers, widen=widen_threads)
             losses = [bc_threads.timed(learner.pretrain_step, demo_buffers) for _ in range(s.offline_steps)] \
                 if demo_buffers else []
             learner.finish_pretraining()
