@@ -90,6 +90,43 @@ def test_frozen_normaliser_keeps_the_demo_statistics_online():
     assert paper.inputs.obs_norm.mean.mean() > 1.0
 
 
+def _replay(seed: int):
+    from surrol_data.algos.replay import EpisodeReplay
+
+    reward = lambda ag, g: -(np.linalg.norm(ag - g, axis=-1) > 0.5).astype(np.float32)  # noqa: E731
+    buf = EpisodeReplay(8, 20, 7, 3, 5, reward, 4, seed=seed)
+    rng = np.random.default_rng(seed)
+    for _ in range(4):
+        buf.add_episode(rng.normal(size=(21, 7)), rng.normal(size=(21, 3)), rng.normal(size=(20, 3)),
+                        rng.uniform(-1, 1, (20, 5)))
+    return buf
+
+
+def test_online_updates_fine_tune_the_actor_at_their_own_learning_rate_also_after_a_resume():
+    from surrol_data.algos.ensemble import EnsembleDDPG
+
+    cfg = DDPGConfig(hidden_sizes=(16,), actor_lr=1e-3, online_actor_lr=1e-4, bc_weight=5.0)
+    lr = lambda opt: opt.param_groups[0]["lr"]  # noqa: E731
+    agent = DDPG(7, 3, 5, cfg, seed=0)
+    agent.pretrain_step(_replay(1))
+    assert lr(agent.actor_opt) == 1e-3        # BC pre-training fits the demos at actor_lr
+    agent.finish_pretraining()
+    agent.update(_replay(2), _replay(1))
+    assert lr(agent.actor_opt) == 1e-4 and lr(agent.critic_opt) == 1e-3
+    restored = DDPG(7, 3, 5, cfg, seed=0)
+    restored.load_state_dict(agent.state_dict())
+    restored.update(_replay(2), _replay(1))
+    assert lr(restored.actor_opt) == 1e-4
+    ensemble = EnsembleDDPG(7, 3, 5, cfg, [0, 1])
+    ensemble.pretrain_step([_replay(1), _replay(3)])
+    assert lr(ensemble.actor_opt) == 1e-3
+    ensemble.update([_replay(2), _replay(4)], [_replay(1), _replay(3)])
+    assert lr(ensemble.actor_opt) == 1e-4
+    paper = DDPG(7, 3, 5, DDPGConfig(hidden_sizes=(16,)), seed=0)   # unset: actor_lr throughout
+    paper.update(_replay(2), _replay(1))
+    assert lr(paper.actor_opt) == 1e-3
+
+
 class _Traj:
     def __init__(self, rng, n=20):
         self.observation = rng.normal(size=(n + 1, 7)).astype(np.float32)

@@ -72,7 +72,17 @@ class DDPGConfig:
     filtered_bc: bool = False        # the actor's improvement step is BC towards the replay batch's own actions
                                      # where the critic rates them above the actor's (binary advantage filter),
                                      # weighted by q_term_scale, instead of −Q: no step along ∇ₐQ at all
+    online_actor_lr: float = 0.0     # the actor's learning rate in online updates (0: actor_lr throughout); BC
+                                     # pre-training fits the demos at actor_lr, online steps then fine-tune it
     probe: bool = False              # log per epoch how far the learner has moved from its BC start (warm_probe)
+
+
+def set_online_actor_lr(optimizer: torch.optim.Optimizer, config: DDPGConfig) -> None:
+    """Before an online update: the actor's optimiser at ``online_actor_lr`` where one is set (idempotent, so it
+    holds after a resume, whatever learning rate the saved optimiser state carried)."""
+    if config.online_actor_lr > 0:
+        for group in optimizer.param_groups:
+            group["lr"] = config.online_actor_lr
 
 
 def q_term_scale(online_updates: int, config: DDPGConfig) -> float:
@@ -150,6 +160,7 @@ class DDPG:
 
     def update(self, replay: EpisodeReplay, demos: EpisodeReplay | None) -> dict[str, float]:
         cfg = self.config
+        set_online_actor_lr(self.actor_opt, cfg)
         # 1. replay batch
         scale = q_term_scale(self.online_updates, cfg)
         batch = self._tensors(replay.sample(cfg.batch_size, self.rng))

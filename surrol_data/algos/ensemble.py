@@ -27,7 +27,7 @@ import torch
 from torch import nn
 
 from surrol_data.algos.bc import BCConfig, BCPolicy
-from surrol_data.algos.ddpg import DDPG, DDPGConfig, q_term_scale
+from surrol_data.algos.ddpg import DDPG, DDPGConfig, q_term_scale, set_online_actor_lr
 from surrol_data.algos.env_pool import PolicySnapshot, explored_action
 from surrol_data.algos.networks import DeterministicActor
 from surrol_data.algos.replay import EpisodeReplay, rng_from_tensor, rng_state_tensor
@@ -191,6 +191,7 @@ class EnsembleDDPG:
     def update(self, replays: list[EpisodeReplay], demos: list[EpisodeReplay] | None) -> list[dict[str, float]]:
         """One update iteration of every member (DDPG.update's steps, batched); per-member metrics."""
         cfg = self.config
+        set_online_actor_lr(self.actor_opt, cfg)
         with_demos = demos is not None and self.uses_demos_in_loss
         # same draw order as DDPG.update: member i's replay batch, then its demo batch, from rngs[i]
         batch = self._batch(replays, cfg.batch_size)
