@@ -153,8 +153,8 @@ def _worker(conn, env_fn, n_envs: int, nice: int) -> None:
                 conn.send((out, time.process_time()))
             elif cmd == "close":
                 break
-    except (KeyboardInterrupt, EOFError):
-        pass
+    except (KeyboardInterrupt, EOFError, BrokenPipeError, ConnectionResetError):
+        pass   # the parent stopped or was killed: nobody is left to send episodes to (its checkpoints are intact)
     finally:
         for env in envs:
             env.close()
