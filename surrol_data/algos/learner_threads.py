@@ -32,7 +32,7 @@ def available_cores() -> int:
 
 
 class LearnerThreads:
-    """Run every update through :meth:`timed` (or wrap it in :meth:`before_update` / :meth:`after_update`).
+    """Run every update through :meth:`timed`.
 
     ``busy_workers``: a callable, how many env workers are still playing; ``base``: the threads while they all
     play (the config's ``torch_threads``); ``widen=False``: always ``base``."""
@@ -48,21 +48,24 @@ class LearnerThreads:
         self._timing: tuple[int, float] | None = None
 
     def timed(self, update, *args):
-        self.before_update()
+        self._before_update()
         try:
             return update(*args)
         finally:
-            self.after_update()
+            self._after_update()
 
-    def before_update(self) -> None:
+    def _before_update(self) -> None:
         wide = self.cores - self.busy_workers() if self.widen else self.base
-        n = self._choose(wide) if wide > self.base else self.base
-        self._timing = (n, self.clock()) if wide > self.base else None
+        if wide > self.base:   # a core to spare: choose, and time the update for the next choice
+            n = self._choose(wide)
+            self._timing = (n, self.clock())
+        else:
+            n, self._timing = self.base, None
         if n != self.current:
             torch.set_num_threads(n)
             self.current = n
 
-    def after_update(self) -> None:
+    def _after_update(self) -> None:
         if self._timing is None:
             return
         n, started = self._timing
