@@ -12,8 +12,8 @@ both sides of the trade, and tests/test_physics_realism.py keeps them true.
 Measured and rejected (benchmarks/physics_realism.py, 3–5-episode probes): a closed jaw sank 1.2–1.8 mm into
 the pad because Bullet's box-box test reports no contact before boxes overlap (fixed by hull blades, see
 shapes.py), not because of the step. Against a tool pressing an object into a static body (pokes, swipes;
-the object sank 1.5–9 mm), none of these helped enough to keep: 24 or 48 sub-steps, 60 or 200 solver
-iterations (200 halved it at 4× the cost), contact ERP 0.8, contact stiffness on the objects or the statics,
+the object sank 1.5–9 mm, with the heavy arm of the time), none of these helped enough to keep: 24 or 48
+sub-steps, 60 or 200 solver iterations alone (200 halved it at 4× the cost), contact stiffness on the objects or the statics,
 the MLCP solvers, and the gauze as a rigid body (maximal coordinates). A block pushed down by an external force
 alone (no tool) does not sink even at 60 N: the press-in came from the arm, whose position motors pushed with
 up to 60 N·m (and, under the adaptive sub-steps, up to 8× more: see psm_env._set_time_step) through heavy links.
@@ -22,7 +22,9 @@ What removed most of it is the dVRK's own arrangement: a light, gravity-compensa
 force limited, so a tool stalls against a rigid obstacle instead of driving through it (benchmarks/
 physics_realism.py, 10 episodes: PegTransfer pokes 8.6 → 1.6 mm, none left inside instead of 21 of 30;
 bang-bang PegTransfer 0.2 mm), while unit-box actions are still tracked within 2.7 % in free space. The limits
-that would keep every poke under 1 mm leave BiPegTransfer's oracle at 91 % (see PSM_MAX_FORCE).
+that would keep every poke under 1 mm leave BiPegTransfer's oracle at 91 % (see PSM_MAX_FORCE). What took the
+rest (1.3–2.3 mm left) is the contact solver on that arm (SOLVER_ITERATIONS, CONTACT_ERP below), and counting a
+tumbling object's spin in the adaptive sub-steps (a needle flicked by a poke landed 1.4 mm deep).
 """
 
 from __future__ import annotations
@@ -42,7 +44,22 @@ from surrol_data.envs.units import CONTROL_PERIOD_S, SCALING
 GRAVITY = (0.0, 0.0, -9.81)
 SUBSTEPS = 12                     # physics steps per control period
 TIME_STEP = CONTROL_PERIOD_S / SUBSTEPS
-SOLVER_ITERATIONS = 20
+# Contact solver. A tool pressing an object onto a static body is a chain of constraints (the force-limited motor,
+# tool↔object, object↔static) that Gauss-Seidel resolves only over many iterations, and whatever it leaves unresolved
+# the contact ERP corrects by that fraction per step. Deepest object↔static overlap (mm) in benchmarks/
+# physics_realism.py rows, with the spin-aware sub-steps: 20 iterations and ERP 0.2 (PyBullet's defaults) 1.09 /
+# 1.52 / 1.28 / 1.35 for needle poke / needle swipe / block poke / block swipe (4 episodes each) and 3.22 under
+# random BiPegTransfer actions (a block wedged on a peg, creeping in with no tool touching it); 50 iterations alone
+# ≤ 0.98 on pokes and swipes but 3.04 under PegTransfer bang-bang; ERP 0.8 alone 2.09 (needle swipe) and 4.71
+# (block swipe); 30 iterations and ERP 0.8 1.56 (block swipe) and 5.25 under BiPegTransfer bang-bang (blocks jammed
+# against pegs and each other); 50 iterations and ERP 0.8 ≤ 0.87 in every row of the full benchmark (10 episodes:
+# every PSM task under random, bang-bang and oracle actions, pokes, swipes, drops), nothing left inside. ERP 0.8
+# also lets a resting object sit on its support (a needle on the pad rested 0.36 mm deep at ERP 0.2, 0.03 mm at
+# 0.8); at ERP 1.0 (100 iterations) a poked needle was flung off the pad spinning at 18 rad/s.
+# Cost, oracle episodes of the same run (5 × 3, medians): NeedlePick −3 %, PegTransfer −2 %, GauzeRetrieve −12 %,
+# BiPegTransfer −10 % of the steps/s at (20, 0.2); ERP alone costs nothing measurable.
+SOLVER_ITERATIONS = 50
+CONTACT_ERP = 0.8
 SETTLE_STEPS = 4                  # physics steps after a reset before the first observation
 
 # Joint PD control (PyBullet's position+velocity motor): gains, and limits on motor force and velocity.
@@ -167,7 +184,7 @@ def make_client(gui: bool = False, renderer: bool = True) -> Client:
 def configure(client: BulletClient) -> None:
     client.setGravity(*GRAVITY)
     client.setPhysicsEngineParameter(fixedTimeStep=TIME_STEP, numSolverIterations=SOLVER_ITERATIONS,
-                                     numSubSteps=0, deterministicOverlappingPairs=1)
+                                     contactERP=CONTACT_ERP, numSubSteps=0, deterministicOverlappingPairs=1)
 
 
 @contextlib.contextmanager
