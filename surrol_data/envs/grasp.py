@@ -5,13 +5,16 @@
 2. **Grip.** Once both blades touch the object *on their inner faces* (contact normal across the closing gap,
    contact point along the blade, not past its end) with the jaw still open by more than the thinnest object
    leaves it, the object is fixed to the wrist at the pose it has in
-   the hand by a constraint as strong as the squeeze's friction (``physics.GRASP_FRICTION_FORCE``). A closed
-   jaw poked onto an object or swiped into it touches it with a blade's end or outer face and never grips.
+   the hand by a constraint as strong as the squeeze's friction (``physics.GRASP_FRICTION_FORCE``), and each
+   blade is held where it stopped (``Psm.hold_blades``: a jaw that met the object off its centre line stays
+   turned). A closing jaw near the object is sub-stepped finely enough that no blade passes more than the touch
+   distance into it between two checks (adaptive_steps.py). A closed jaw poked onto an object or swiped into it
+   touches it with a blade's end or outer face and never grips.
 3. **Weld.** Once the task's lift condition holds (the reference's ``_meet_contact_constraint_requirement``:
    e.g. the needle lifted 5 mm), the constraint gets the weld's full force (``physics.GRASP_MAX_FORCE``).
    The reference lifts by the friction of its squeezing jaws until then; PyBullet's contacts at our step
    size are too soft to squeeze without the blades closing through the object, so the grip stands in for
-   that friction. While gripped or welded, the jaw is held at the angle it stopped at (it cannot close
+   that friction. While gripped or welded, each blade is held where it stopped (the jaw cannot close
    through the object), and the blades stop colliding with the held object:
    their contacts would only fight the weld (a block held by two hands gets twisted out of the second hand
    once the first lets go) and would make carrying cost 2–3× the physics of a free move.
@@ -142,7 +145,7 @@ class Grasp:
         c.changeConstraint(self.constraint, maxForce=max_force)
         self.welded = max_force >= physics.GRASP_MAX_FORCE
         self._held_at = np.asarray(rel_pos)
-        self.psm.stop_jaw_at(self.psm.jaw_angle())
+        self.psm.hold_blades()
         self._set_jaw_collisions(False)
 
     def _set_jaw_collisions(self, enabled: bool) -> None:
