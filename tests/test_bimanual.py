@@ -156,3 +156,40 @@ def test_camera_option_survives_the_per_episode_rebuild():
     other, _ = e.reset(seed=1)                 # another needle pose, another picture
     assert not np.array_equal(other["image"], first["image"])
     e.close()
+
+
+@pytest.mark.parametrize("task, seed", [("BiPegTransfer", 0), ("NeedleRegrasp", 1), ("NeedleRings", 2)])
+def test_hand_over_drives_the_object_by_one_constraint_and_no_blade_sinks_into_it(task, seed):
+    """While both hands hold the object, only the giving hand's constraint drives it; the receiving hand squeezes
+    it with blades that still collide with it, and takes it when the giver opens. Two welds at once made a rigid
+    loop through both force-limited arms (BiPegTransfer's oracle: a blade 1.4 mm inside the block)."""
+    from surrol_data.envs.units import SCALING
+
+    e = gym.make(f"SurRoL/{task}-v0")
+    u = e.unwrapped
+    obs, info = e.reset(seed=seed)
+    deepest = [0.0]
+
+    def overlap(env):
+        for g in env.grasps:
+            for p in env.client.getClosestPoints(g.psm.body, env.object_id, 0.0):
+                deepest[0] = max(deepest[0], -p[8] / SCALING)
+
+    u.substep_hook = overlap
+    both, owners = 0, []   # owners: per step, the arm whose constraint drives the object (None: none)
+    for _ in range(e.spec.max_episode_steps):
+        obs, _, _, _, info = e.step(u.oracle_action(obs))
+        owners.append(next((k for k, g in enumerate(u.grasps) if g.constraint is not None), None))
+        if all(info["grasped"]):
+            both += 1
+            assert sum(g.constraint is not None for g in u.grasps) == 1
+            passive = next(g for g in u.grasps if g.passive)
+            for j in (6, 7):   # the squeezing hand's blades collide with the object (no pair filter)
+                assert u.client.getContactPoints(passive.psm.body, u.object_id, j) or \
+                    u.client.getClosestPoints(passive.psm.body, u.object_id, 0.0005 * SCALING, j)
+    u.substep_hook = None
+    e.close()
+    # The giver's constraint passed straight to the receiver (no step in between with nothing holding it).
+    assert both >= 2 and any(a is not None and b is not None and a != b for a, b in zip(owners, owners[1:]))
+    assert info["is_success"] == 1.0
+    assert deepest[0] <= 1e-3

@@ -8,10 +8,12 @@ tool-tip motion per step; jaw < 0 closes (and grasps when both jaws touch the ob
 ``d_rot`` depends on the arm's rotation mode: ``"yaw"`` turns the downward tool about the vertical by
 30° per unit (as the single-arm tasks); ``"pitch"`` tilts the tool about the world x axis by 15° per unit,
 with the jaw opening along world x (the reference's pitch mode, used to pass a needle held upright).
-A hand-over is just the two grasps at work: the receiving arm closes on the object (two constraints for a
-moment), then the giving arm opens and its grasp releases. A held object does not collide with the jaws that
-hold it (their contacts would only push against the constraint), and the world is rebuilt every episode,
-which keeps equal seeds bit-exact whatever earlier episodes did.
+A hand-over is just the two grasps at work: the receiving arm closes on the object and squeezes it with its
+blades, which keep colliding with it, while the giving arm's constraint still drives it; the giving arm opens,
+and the receiving arm's grasp takes the object where it sits between its blades (one constraint at a time: see
+grasp.py, 5. Hand-over). A held object does not collide with the jaws whose constraint holds it (their contacts
+would only push against the constraint), and the world is rebuilt every episode, which keeps equal seeds
+bit-exact whatever earlier episodes did.
 
 Observation (35,), real metres and radians: PSM1 (tip xyz, tip orientation (roll, pitch, yaw) relative to
 the tool-down frame, jaw angle), PSM2 (same 7), object position, object − tip1, object − tip2, the object's
@@ -105,6 +107,8 @@ class BimanualEnv(PsmEnv):
         self.goal_marker = objects.make_goal_marker(self.client, visual=self.visual)
         # Held objects do not collide with the holding jaws (see Grasp); the world is rebuilt every episode.
         self.grasps = tuple(Grasp(self.client, psm, self.object_id, self.grasp_lift_condition) for psm in self.psms)
+        for grasp in self.grasps:   # each hand knows the other's, for the hand-over (one constraint at a time)
+            grasp.peers = tuple(g for g in self.grasps if g is not grasp)
         self._substeps = SubstepPlanner(self.client, self.grasps, self.dynamic_bodies)
 
     # ------------------------------------------------------------------ Gymnasium API

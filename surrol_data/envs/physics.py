@@ -83,8 +83,8 @@ PSM_MAX_FORCE = (2.0, 2.0, 1.0, 0.1, 0.1, 0.1)
 # error, benchmarks/physics_realism.py "tracking"); at (1.0, 1.0, 0.2) every unit-box action is tracked within
 # ~1 %. Faster moves into contact are what the adaptive sub-steps below are for.
 PSM_MAX_VELOCITY = (1.0, 1.0, 0.2, 3.0, 3.0, 3.0)            # rad/s, m/s (real)
-# Jaw squeeze. The blades stop on the object at first touch (the grasp grips at that physics step and holds the
-# jaw there), so the squeeze force only matters while closing. With the heavy arm (links 0.1), 0.01–0.1 let a
+# Jaw squeeze. The blades stop on the object at first touch (the grasp grips at that physics step and holds each
+# blade there), so the squeeze force only matters while closing. With the heavy arm (links 0.1), 0.01–0.1 let a
 # block wall pry a closed jaw open and 4 pried a blade 1 mm into a needle; with the light arm below, 0.1 keeps
 # pokes and swipes grasp-free and the blades within 0.5 mm of what they touch (with 0.3 on the jaws and the
 # wrist, a poked block sank 1.1 mm).
@@ -133,6 +133,9 @@ JAW_FRICTION = 1.0
 OBJECT_FRICTION = 1.0
 # A blade within this distance of the object touches it (real metres). 0.8 mm (the old value) clamped the
 # jaw at 15° on a 1.24 mm needle wire (the blades had not reached it); 0.2 mm reads ~9° (the wire's width).
+# A closing jaw near its object is also sub-stepped so that a blade comes no nearer than this per physics step
+# (adaptive_steps.py): at the coarse step it covered ~1.1 mm per step and a block was gripped 0.45 mm inside a
+# blade; refined, the grip finds both blades within 0.2 mm, outside the block (BiPegTransfer's oracle, seed 0).
 GRASP_CONTACT_DISTANCE_M = 0.0002
 BLADE_LENGTH_M = 0.0102             # jaw blade length (the reference's jaw collision box)
 GRASP_MAX_FORCE = 20.0              # the weld's force limit (reference: maxForce 20)

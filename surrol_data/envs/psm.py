@@ -103,6 +103,7 @@ class Psm:
         self._ramp_done = True
         self._jaw_target = 0.0
         self._jaw_stop: float | None = None
+        self._jaw_skew = 0.0   # both blades' common turn while they hold an object (see hold_blades)
         self._carried_weights = tuple(-self._spec["linkMasses"][j] * physics.GRAVITY[2] for j in _CARRIED_LINKS)
         self._carried_lift = (0.0, 0.0, sum(self._carried_weights))
         self._carried_com = (0.0, 0.0, 0.0)
@@ -205,6 +206,7 @@ class Psm:
         self.client.removeBody(self.body)
         self.body = self._create_body()
         self._jaw_stop = None
+        self._jaw_skew = 0.0
 
     def plan_gravity_compensation(self) -> None:
         """Once per control period: where the weight of the links that move with the insertion (2–8) acts."""
@@ -353,11 +355,30 @@ class Psm:
         self._apply_jaw_target()
 
     def stop_jaw_at(self, angle: float | None) -> None:
-        """Close no further than ``angle`` (rad) — a welded object between the blades — or, None, freely."""
+        """Close no further than ``angle`` (rad) — a welded object between the blades — or, None, freely (and
+        the blades symmetric about the wrist again)."""
         self._jaw_stop = angle
+        if angle is None and self._jaw_skew != 0.0:
+            self._jaw_skew = 0.0
+            self._apply_jaw_target()
         if angle is not None and self._jaw_target < angle:
             self._jaw_target = angle
             self._apply_jaw_target()
+
+    def hold_blades(self) -> None:
+        """Stop each blade where it is: an object between them (until ``stop_jaw_at(None)``).
+
+        A jaw closing on an object off its centre line meets it with one blade first, and that blade is held back
+        while the other closes: the two stop turned together (skewed) about the wrist. Stopping only the
+        opening angle let the blades swing back to their symmetric targets after the grip, into the held object
+        (which no longer collides with them) and off it: a block gripped at the blade ends under bang-bang
+        input then lay 0.6 mm inside one blade and 0.5 mm clear of the other (benchmarks/physics_realism.py,
+        BiPegTransfer seed 8, step 16)."""
+        a, b = pb.getJointStates(self.body, JAW_JOINTS, self._cid)
+        self._jaw_skew = float((a[0] + b[0]) / 2)
+        self._jaw_stop = float(_JAW_SIGNS[0] * a[0] + _JAW_SIGNS[1] * b[0])
+        self._jaw_target = max(self._jaw_target, self._jaw_stop)
+        self._apply_jaw_target()
 
     def _apply_arm_targets(self, q, joints=ARM_JOINTS) -> None:
         """Set the motors of ``joints`` (default all six) to ``q``'s values (``q`` indexed by joint, as ``joints``;
@@ -381,9 +402,10 @@ class Psm:
         self._apply_jaw_target()
 
     def _apply_jaw_target(self) -> None:
-        self._goal_targets = self._goal_targets[:6] + tuple(sign * self._jaw_target / 2 for sign in _JAW_SIGNS)
+        skew = self._jaw_skew
+        self._goal_targets = self._goal_targets[:6] + tuple(sign * self._jaw_target / 2 + skew for sign in _JAW_SIGNS)
         for j, sign in zip(JAW_JOINTS, _JAW_SIGNS):
             # (targetPosition, targetVelocity, force, positionGain, velocityGain, maxVelocity, client)
-            pb.setJointMotorControl2(self.body, j, _POSITION_CONTROL, sign * self._jaw_target / 2, 0.0,
+            pb.setJointMotorControl2(self.body, j, _POSITION_CONTROL, sign * self._jaw_target / 2 + skew, 0.0,
                                      physics.JAW_MAX_FORCE, physics.PSM_POSITION_GAIN, physics.PSM_VELOCITY_GAIN,
                                      physics.JAW_MAX_VELOCITY, self._cid)

@@ -276,7 +276,7 @@ class PsmEnv(gym.Env):
         step_simulation = pb.stepSimulation
         planner = self._substeps
         arms = [grasp.psm for grasp in planner.grasps]
-        planner.plan_tools(physics.TIME_STEP)
+        planner.plan_tools(physics.TIME_STEP, watched)
         for psm in arms:
             psm.plan_gravity_compensation()
         k_now = 1
