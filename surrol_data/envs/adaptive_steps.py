@@ -17,10 +17,14 @@ import math
 
 from surrol_data.envs import physics
 from surrol_data.envs.physics import pb
+from surrol_data.envs.tool_sweep import ToolSweep
 from surrol_data.envs.units import SCALING
 
 _GRAVITY = abs(physics.GRAVITY[2])
 _base_velocity = pb.getBaseVelocity
+# Refine a tool's period only for bodies it moves towards fast enough to reach (tool_sweep.py); False: for every
+# body within its reach, whichever way it moves (the test before, kept to measure against).
+DIRECTIONAL_TOOL_TEST = True
 # Tool links whose sweep matters (wrist pitch link, both jaws).
 _TOOL_LINKS = (4, 6, 7)
 
@@ -79,32 +83,68 @@ class SubstepPlanner:
         worst = 0.0
         for grasp in self.grasps:
             psm = grasp.psm
-            travel = psm.blade_speed_bound(dt) * dt
+            states = psm.moving_joint_states()
+            travel = psm.blade_speed_bound(dt, states) * dt
             if travel <= max(worst, physics.MAX_TRAVEL_PER_STEP_M):
                 continue
             # A held object moves with the tool (the object test watches what it may hit). The reach covers the
-            # whole control period's move.
+            # whole control period's move; within it, only a body the tool moves towards fast enough to close
+            # the gap counts (tool_sweep.py).
             held = (grasp.object_id,) if grasp.attached else ()
-            if self._near_other_body(psm.body, _TOOL_LINKS, travel * SCALING * physics.SUBSTEPS, ignore=held):
+            reach = travel * SCALING * physics.SUBSTEPS
+            if DIRECTIONAL_TOOL_TEST:
+                near = self._tool_may_reach(psm, states, dt * physics.SUBSTEPS, reach, held)
+            else:
+                near = self._near_other_body(psm.body, _TOOL_LINKS, reach, ignore=held)
+            if near:
                 worst = travel
         return worst
 
-    def _near_other_body(self, body: int, links, reach: float, ignore=()) -> bool:
-        """Is another body within ``reach`` (scaled) of ``body``'s ``links``? Bounding boxes first (PyBullet's
-        include a collision margin of ~8 mm real, so they overlap near every floor), then exact distances."""
-        c = self.client
+    def _candidates(self, body: int, links, reach: float, ignore=()) -> tuple[list, list]:
+        """Bodies whose bounding boxes come within ``reach`` (scaled) of ``body``'s ``links``' (PyBullet's boxes
+        include a collision margin of ~8 mm real, so they overlap near every floor), and the links' boxes."""
         lo, hi = [math.inf] * 3, [-math.inf] * 3
+        boxes = []
         for link in links:
             a, b = pb.getAABB(body, link, self._cid)
+            boxes.append((a, b))
             lo = [min(x, y) for x, y in zip(lo, a)]
             hi = [max(x, y) for x, y in zip(hi, b)]
         lo = [x - reach for x in lo]
         hi = [x + reach for x in hi]
-        candidates = {other for other, _ in (c.getOverlappingObjects(lo, hi) or ())}
+        candidates = {other for other, _ in (self.client.getOverlappingObjects(lo, hi) or ())}
         candidates.discard(body)
         candidates.difference_update(ignore)
-        for other in sorted(candidates):
+        return sorted(candidates), boxes
+
+    def _near_other_body(self, body: int, links, reach: float, ignore=()) -> bool:
+        """Is another body within ``reach`` (scaled) of ``body``'s ``links``? Bounding boxes first, then exact
+        distances."""
+        c = self.client
+        candidates, _ = self._candidates(body, links, reach, ignore)
+        for other in candidates:
             for link in links:
                 if c.getClosestPoints(body, other, reach, linkIndexA=link):
+                    return True
+        return False
+
+    def _tool_may_reach(self, psm, states, period: float, reach: float, ignore=()) -> bool:
+        """Can the tool's links reach another body within the period (``reach``: the most any blade point may
+        travel meanwhile, scaled)? Exact distances to the bodies within reach, then whether the tool moves
+        towards each closest point fast enough to close its gap (tool_sweep.py)."""
+        body = psm.body
+        candidates, boxes = self._candidates(body, _TOOL_LINKS, reach, ignore)
+        boxes = dict(zip(_TOOL_LINKS, boxes))
+        sweep = None
+        for other in candidates:
+            # One query for all the tool's links (the shaft's points are left out: it is not a link watched).
+            # A compound body gives one point per child shape: each is a convex pair of its own.
+            for p in pb.getClosestPoints(body, other, reach, physicsClientId=self._cid):
+                link = p[3]
+                if link not in boxes:
+                    continue
+                if sweep is None:
+                    sweep = ToolSweep(psm, states, period)
+                if sweep.may_close(link, p[5], p[7], p[8], boxes[link]):
                     return True
         return False

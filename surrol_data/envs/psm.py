@@ -256,12 +256,22 @@ class Psm:
         v[2] /= SCALING
         return v
 
-    def blade_speed_bound(self, dt: float) -> float:
+    def moving_joint_states(self) -> tuple:
+        """PyBullet's states (position, velocity, …) of joints 0–7 (insertion scaled)."""
+        return pb.getJointStates(self.body, _MOVING_JOINTS, physicsClientId=self._cid)
+
+    @property
+    def goal_targets(self) -> tuple:
+        """Where the motors of joints 0–7 are headed (the last accepted command; insertion scaled)."""
+        return self._goal_targets
+
+    def blade_speed_bound(self, dt: float, states: tuple | None = None) -> float:
         """A bound (real m/s) on how fast any point of the blades moves over the next control period of physics
         steps of ``dt``: per joint the faster of its current speed and the speed that covers the rest of its
         move within the target ramp (capped by the joint's limit), times that joint's lever to the blade ends.
         (Plain floats: numpy's per-call overhead on 8-element arrays would cost more than the arithmetic.)"""
-        states = pb.getJointStates(self.body, _MOVING_JOINTS, physicsClientId=self._cid)
+        if states is None:
+            states = self.moving_joint_states()
         targets = self._goal_targets
         caps = self._speed_caps
         ramp = physics.RAMP_STEPS * dt
