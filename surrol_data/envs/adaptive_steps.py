@@ -17,6 +17,7 @@ import math
 
 from surrol_data.envs import physics
 from surrol_data.envs.physics import pb
+from surrol_data.envs.psm import EEF_LINK
 from surrol_data.envs.tool_sweep import ToolSweep
 from surrol_data.envs.units import SCALING
 
@@ -25,6 +26,9 @@ _base_velocity = pb.getBaseVelocity
 # Refine a tool's period only for bodies it moves towards fast enough to reach (tool_sweep.py); False: for every
 # body within its reach, whichever way it moves (the test before, kept to measure against).
 DIRECTIONAL_TOOL_TEST = True
+# Leave an object out of the per-step speed checks for a period in which the tool holding it is too slow to make it
+# fast (see SubstepPlanner._slow_held_objects); False: check every object at every coarse step.
+SKIP_SLOW_HELD_OBJECTS = True
 # Tool links whose sweep matters (wrist pitch link, both jaws).
 _TOOL_LINKS = (4, 6, 7)
 
@@ -45,7 +49,29 @@ class SubstepPlanner:
         """Once per control period, before its physics steps: the refinement the tools' moves need. Their speed
         during the period is set by the ramped joint targets (known now), so one test per period suffices."""
         self._tool_k = self._k(self._tool_travel(dt), physics.MAX_TRAVEL_PER_STEP_M)
-        self._bodies = self.dynamic_bodies()
+        bodies = self.dynamic_bodies()
+        if SKIP_SLOW_HELD_OBJECTS and bodies:
+            slow = self._slow_held_objects(dt)
+            if slow:
+                bodies = [b for b in bodies if b not in slow]
+        self._bodies = bodies
+
+    def _slow_held_objects(self, dt: float) -> set[int]:
+        """Objects held by a tool too slow, this period, to move them faster than the object test's limit: they
+        move with the wrist (the grasp's constraint holds them against far more than their weight), so the
+        per-step speed checks would find them slow; they are left out of those checks for the period."""
+        slow = set()
+        cid = self._cid
+        for grasp in self.grasps:
+            if not grasp.attached or grasp.object_link >= 0:
+                continue
+            psm = grasp.psm
+            wrist = pb.getLinkState(psm.body, EEF_LINK, 0, 1, cid)[4]
+            base = pb.getBasePositionAndOrientation(grasp.object_id, cid)[0]
+            offset = math.dist(wrist, base) / SCALING
+            if psm.held_speed_bound(dt, offset) * dt <= physics.MAX_OBJECT_TRAVEL_PER_STEP_M:
+                slow.add(grasp.object_id)
+        return slow
 
     def refinement(self, dt: float) -> int:
         """How many fine steps the next coarse step of ``dt`` seconds needs (1 = none)."""
