@@ -17,7 +17,6 @@ import math
 
 from surrol_data.envs import physics
 from surrol_data.envs.physics import pb
-from surrol_data.envs.psm import EEF_LINK
 from surrol_data.envs.tool_sweep import ToolSweep
 from surrol_data.envs.units import SCALING
 
@@ -43,35 +42,18 @@ class SubstepPlanner:
         self._cid = client._client
         self._tool_k = 1
         self._bodies: list[int] = []
+        self._slow_held: set[int] = set()
         self.refined_steps = 0     # coarse steps that were split (for benchmarks)
 
     def plan_tools(self, dt: float) -> None:
         """Once per control period, before its physics steps: the refinement the tools' moves need. Their speed
         during the period is set by the ramped joint targets (known now), so one test per period suffices."""
+        self._slow_held = set()
         self._tool_k = self._k(self._tool_travel(dt), physics.MAX_TRAVEL_PER_STEP_M)
         bodies = self.dynamic_bodies()
-        if SKIP_SLOW_HELD_OBJECTS and bodies:
-            slow = self._slow_held_objects(dt)
-            if slow:
-                bodies = [b for b in bodies if b not in slow]
+        if self._slow_held and bodies:
+            bodies = [b for b in bodies if b not in self._slow_held]
         self._bodies = bodies
-
-    def _slow_held_objects(self, dt: float) -> set[int]:
-        """Objects held by a tool too slow, this period, to move them faster than the object test's limit: they
-        move with the wrist (the grasp's constraint holds them against far more than their weight), so the
-        per-step speed checks would find them slow; they are left out of those checks for the period."""
-        slow = set()
-        cid = self._cid
-        for grasp in self.grasps:
-            if not grasp.attached or grasp.object_link >= 0:
-                continue
-            psm = grasp.psm
-            wrist = pb.getLinkState(psm.body, EEF_LINK, 0, 1, cid)[4]
-            base = pb.getBasePositionAndOrientation(grasp.object_id, cid)[0]
-            offset = math.dist(wrist, base) / SCALING
-            if psm.held_speed_bound(dt, offset) * dt <= physics.MAX_OBJECT_TRAVEL_PER_STEP_M:
-                slow.add(grasp.object_id)
-        return slow
 
     def refinement(self, dt: float) -> int:
         """How many fine steps the next coarse step of ``dt`` seconds needs (1 = none)."""
@@ -106,11 +88,20 @@ class SubstepPlanner:
         return worst
 
     def _tool_travel(self, dt: float) -> float:
+        """The worst per-step travel of a tool that may reach another body this period (0 if none). Notes, on
+        the way, the held objects whose tools are too slow to make them fast (``_slow_held``): they move with the
+        wrist (the grasp's constraint holds them against far more than their weight), so the per-step speed
+        checks would find them slow, and they are left out of those checks for the period."""
         worst = 0.0
         for grasp in self.grasps:
             psm = grasp.psm
             states = psm.moving_joint_states()
-            travel = psm.blade_speed_bound(dt, states) * dt
+            bound = psm.blade_speed_bound(dt, states)
+            travel = bound * dt
+            if SKIP_SLOW_HELD_OBJECTS and grasp.attached and grasp.object_link < 0:
+                held = psm.held_speed_bound(dt, grasp.held_offset_m(), states, bound)
+                if held * dt <= physics.MAX_OBJECT_TRAVEL_PER_STEP_M:
+                    self._slow_held.add(grasp.object_id)
             if travel <= max(worst, physics.MAX_TRAVEL_PER_STEP_M):
                 continue
             # A held object moves with the tool (the object test watches what it may hit). The reach covers the

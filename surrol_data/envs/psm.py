@@ -283,19 +283,18 @@ class Psm:
             bound += max(abs(state[1]), min(cap, abs(target - state[0]) / ramp)) * lever
         return bound
 
-    def held_speed_bound(self, dt: float, offset_m: float, states: tuple | None = None) -> float:
+    def held_speed_bound(self, dt: float, offset_m: float, states: tuple, blade_bound: float) -> float:
         """A bound (real m/s) on how fast a point fixed to the wrist-yaw link (where a grasp holds its object),
-        ``offset_m`` from that link's origin, moves over the next control period: the blades' bound plus the
-        offset times the revolute arm joints' speeds (the held point turns with them, the jaws do not carry it)."""
-        if states is None:
-            states = self.moving_joint_states()
+        ``offset_m`` from that link's origin, moves over the next control period: the blades' bound
+        (``blade_bound``, from :meth:`blade_speed_bound` with the same ``states``) plus the offset times the
+        revolute arm joints' speeds (the held point turns with them; the jaws do not carry it)."""
         targets = self._goal_targets
         caps = self._speed_caps
         ramp = physics.RAMP_STEPS * dt
         turn = 0.0
         for j in _HELD_REVOLUTE:
             turn += max(abs(states[j][1]), min(caps[j], abs(targets[j] - states[j][0]) / ramp))
-        return self.blade_speed_bound(dt, states) + offset_m * turn
+        return blade_bound + offset_m * turn
 
     def jaw_angle(self) -> float:
         a, b = pb.getJointStates(self.body, JAW_JOINTS, self._cid)
