@@ -162,6 +162,6 @@ class SubstepPlanner:
                     continue
                 if sweep is None:
                     sweep = ToolSweep(psm, states, period)
-                if sweep.may_close(link, p[5], p[7], p[8], boxes[link]):
+                if sweep.may_close(link, p[7], p[8], boxes[link]):
                     return True
         return False
