@@ -26,7 +26,7 @@ _base_velocity = pb.getBaseVelocity
 # body within its reach, whichever way it moves (the test before, kept to measure against).
 DIRECTIONAL_TOOL_TEST = True
 # Leave an object out of the per-step speed checks for a period in which the tool holding it is too slow to make it
-# fast (see SubstepPlanner._slow_held_objects); False: check every object at every coarse step.
+# fast (see SubstepPlanner._tool_travel); False: check every object at every coarse step.
 SKIP_SLOW_HELD_OBJECTS = True
 # Tool links whose sweep matters (wrist pitch link, both jaws).
 _TOOL_LINKS = (4, 6, 7)
