@@ -24,10 +24,17 @@ import math
 from surrol_data.envs import physics
 from surrol_data.envs.physics import pb
 from surrol_data.envs.psm import JAW_JOINTS
+from surrol_data.envs.tool_sweep import ToolSweep
 from surrol_data.envs.units import SCALING
 
 _GRAVITY = abs(physics.GRAVITY[2])
 _base_velocity = pb.getBaseVelocity
+# Refine a tool's period only for bodies it moves towards fast enough to reach (tool_sweep.py); False: for every
+# body within its reach, whichever way it moves (the test before, kept to measure against).
+DIRECTIONAL_TOOL_TEST = True
+# Leave an object out of the per-step speed checks for a period in which the tool holding it is too slow to make it
+# fast (see SubstepPlanner._tool_travel); False: check every object at every coarse step.
+SKIP_SLOW_HELD_OBJECTS = True
 # Tool links whose sweep matters (wrist pitch link, both jaws).
 _TOOL_LINKS = (4, 6, 7)
 # Spin (rad/s) below which an object's far points move no faster than its centre, to within the travel limits.
@@ -45,14 +52,19 @@ class SubstepPlanner:
         self._tool_k = 1
         self._bodies: list[int] = []
         self._closing: list = []   # grasps whose jaws close this control period and hold nothing yet
+        self._slow_held: set[int] = set()
         self.refined_steps = 0     # coarse steps that were split (for benchmarks)
 
     def plan_tools(self, dt: float, closing=()) -> None:
         """Once per control period, before its physics steps: the refinement the tools' moves need. Their speed
         during the period is set by the ramped joint targets (known now), so one test per period suffices.
         ``closing``: the grasps whose jaws close during the period without holding anything yet."""
+        self._slow_held = set()
         self._tool_k = self._k(self._tool_travel(dt), physics.MAX_TRAVEL_PER_STEP_M)
-        self._bodies = self.dynamic_bodies()
+        bodies = self.dynamic_bodies()
+        if self._slow_held and bodies:
+            bodies = [b for b in bodies if b not in self._slow_held]
+        self._bodies = bodies
         self._closing = [g for g in closing if g.object_id >= 0]
 
     def refinement(self, dt: float) -> int:
@@ -122,35 +134,80 @@ class SubstepPlanner:
         return 0.0
 
     def _tool_travel(self, dt: float) -> float:
+        """The worst per-step travel of a tool that may reach another body this period (0 if none). Notes, on
+        the way, the held objects whose tools are too slow to make them fast (``_slow_held``): they move with the
+        wrist (the grasp's constraint holds them against far more than their weight), so the per-step speed
+        checks would find them slow, and they are left out of those checks for the period."""
         worst = 0.0
         for grasp in self.grasps:
             psm = grasp.psm
-            travel = psm.blade_speed_bound(dt) * dt
+            states = psm.moving_joint_states()
+            bound = psm.blade_speed_bound(dt, states)
+            travel = bound * dt
+            if SKIP_SLOW_HELD_OBJECTS and grasp.attached and grasp.object_link < 0:
+                held = psm.held_speed_bound(dt, grasp.held_offset_m(), states, bound)
+                if held * dt <= physics.MAX_OBJECT_TRAVEL_PER_STEP_M:
+                    self._slow_held.add(grasp.object_id)
             if travel <= max(worst, physics.MAX_TRAVEL_PER_STEP_M):
                 continue
             # A held object moves with the tool (the object test watches what it may hit). The reach covers the
-            # whole control period's move.
+            # whole control period's move; within it, only a body the tool moves towards fast enough to close
+            # the gap counts (tool_sweep.py).
             held = (grasp.object_id,) if grasp.attached else ()
-            if self._near_other_body(psm.body, _TOOL_LINKS, travel * SCALING * physics.SUBSTEPS, ignore=held):
+            reach = travel * SCALING * physics.SUBSTEPS
+            if DIRECTIONAL_TOOL_TEST:
+                near = self._tool_may_reach(psm, states, dt * physics.SUBSTEPS, reach, held)
+            else:
+                near = self._near_other_body(psm.body, _TOOL_LINKS, reach, ignore=held)
+            if near:
                 worst = travel
         return worst
 
-    def _near_other_body(self, body: int, links, reach: float, ignore=()) -> bool:
-        """Is another body within ``reach`` (scaled) of ``body``'s ``links``? Bounding boxes first (PyBullet's
-        include a collision margin of ~8 mm real, so they overlap near every floor), then exact distances."""
-        c = self.client
+    def _candidates(self, body: int, links, reach: float, ignore=()) -> tuple[list, list]:
+        """Bodies whose bounding boxes come within ``reach`` (scaled) of ``body``'s ``links``' (PyBullet's boxes
+        include a collision margin of ~8 mm real, so they overlap near every floor), and the links' boxes."""
         lo, hi = [math.inf] * 3, [-math.inf] * 3
+        boxes = []
         for link in links:
             a, b = pb.getAABB(body, link, self._cid)
+            boxes.append((a, b))
             lo = [min(x, y) for x, y in zip(lo, a)]
             hi = [max(x, y) for x, y in zip(hi, b)]
         lo = [x - reach for x in lo]
         hi = [x + reach for x in hi]
-        candidates = {other for other, _ in (c.getOverlappingObjects(lo, hi) or ())}
+        candidates = {other for other, _ in (self.client.getOverlappingObjects(lo, hi) or ())}
         candidates.discard(body)
         candidates.difference_update(ignore)
-        for other in sorted(candidates):
+        return sorted(candidates), boxes
+
+    def _near_other_body(self, body: int, links, reach: float, ignore=()) -> bool:
+        """Is another body within ``reach`` (scaled) of ``body``'s ``links``? Bounding boxes first, then exact
+        distances."""
+        c = self.client
+        candidates, _ = self._candidates(body, links, reach, ignore)
+        for other in candidates:
             for link in links:
                 if c.getClosestPoints(body, other, reach, linkIndexA=link):
+                    return True
+        return False
+
+    def _tool_may_reach(self, psm, states, period: float, reach: float, ignore=()) -> bool:
+        """Can the tool's links reach another body within the period (``reach``: the most any blade point may
+        travel meanwhile, scaled)? Exact distances to the bodies within reach, then whether the tool moves
+        towards each closest point fast enough to close its gap (tool_sweep.py)."""
+        body = psm.body
+        candidates, boxes = self._candidates(body, _TOOL_LINKS, reach, ignore)
+        boxes = dict(zip(_TOOL_LINKS, boxes))
+        sweep = None
+        for other in candidates:
+            # One query for all the tool's links (the shaft's points are left out: it is not a link watched).
+            # A compound body gives one point per child shape: each is a convex pair of its own.
+            for p in pb.getClosestPoints(body, other, reach, physicsClientId=self._cid):
+                link = p[3]
+                if link not in boxes:
+                    continue
+                if sweep is None:
+                    sweep = ToolSweep(psm, states, period)
+                if sweep.may_close(link, p[7], p[8], boxes[link]):
                     return True
         return False

@@ -105,6 +105,13 @@ class Grasp:
                 return True
         return False
 
+    def held_offset_m(self) -> float:
+        """How far (real metres) the held object's frame sits from the wrist's origin, at most: where it was
+        gripped plus the slip allowed before it is dropped (0 when nothing is held)."""
+        if self._held_at is None:
+            return 0.0
+        return float(vector_norm(self._held_at)) / SCALING + self.max_slip_m
+
     def slip_m(self) -> float:
         """How far (real metres) the held object has moved in the hand since the weld formed."""
         if self._held_at is None:

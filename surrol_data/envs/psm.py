@@ -35,6 +35,7 @@ _WRIST_COLOUR = (0.3, 0.3, 0.35, 1.0)
 _JAW_COLOUR = (0.2, 0.2, 0.22, 1.0)
 
 _MOVING_JOINTS = ARM_JOINTS + JAW_JOINTS
+_HELD_REVOLUTE = (0, 1, 3, 4, 5)         # the revolute joints that turn the wrist-yaw link (what grasps hold on to)
 _POSITION_CONTROL = pb.POSITION_CONTROL
 _WORLD_FRAME = pb.WORLD_FRAME
 _ROLL_LOWER, _ROLL_UPPER = float(kin.PSM_LOWER[3]), float(kin.PSM_UPPER[3])
@@ -258,12 +259,22 @@ class Psm:
         v[2] /= SCALING
         return v
 
-    def blade_speed_bound(self, dt: float) -> float:
+    def moving_joint_states(self) -> tuple:
+        """PyBullet's states (position, velocity, …) of joints 0–7 (insertion scaled)."""
+        return pb.getJointStates(self.body, _MOVING_JOINTS, physicsClientId=self._cid)
+
+    @property
+    def goal_targets(self) -> tuple:
+        """Where the motors of joints 0–7 are headed (the last accepted command; insertion scaled)."""
+        return self._goal_targets
+
+    def blade_speed_bound(self, dt: float, states: tuple | None = None) -> float:
         """A bound (real m/s) on how fast any point of the blades moves over the next control period of physics
         steps of ``dt``: per joint the faster of its current speed and the speed that covers the rest of its
         move within the target ramp (capped by the joint's limit), times that joint's lever to the blade ends.
         (Plain floats: numpy's per-call overhead on 8-element arrays would cost more than the arithmetic.)"""
-        states = pb.getJointStates(self.body, _MOVING_JOINTS, physicsClientId=self._cid)
+        if states is None:
+            states = self.moving_joint_states()
         targets = self._goal_targets
         caps = self._speed_caps
         ramp = physics.RAMP_STEPS * dt
@@ -273,6 +284,19 @@ class Psm:
         for state, target, cap, lever in zip(states, targets, caps, levers):
             bound += max(abs(state[1]), min(cap, abs(target - state[0]) / ramp)) * lever
         return bound
+
+    def held_speed_bound(self, dt: float, offset_m: float, states: tuple, blade_bound: float) -> float:
+        """A bound (real m/s) on how fast a point fixed to the wrist-yaw link (where a grasp holds its object),
+        ``offset_m`` from that link's origin, moves over the next control period: the blades' bound
+        (``blade_bound``, from :meth:`blade_speed_bound` with the same ``states``) plus the offset times the
+        revolute arm joints' speeds (the held point turns with them; the jaws do not carry it)."""
+        targets = self._goal_targets
+        caps = self._speed_caps
+        ramp = physics.RAMP_STEPS * dt
+        turn = 0.0
+        for j in _HELD_REVOLUTE:
+            turn += max(abs(states[j][1]), min(caps[j], abs(targets[j] - states[j][0]) / ramp))
+        return blade_bound + offset_m * turn
 
     def jaw_angle(self) -> float:
         a, b = pb.getJointStates(self.body, JAW_JOINTS, self._cid)
