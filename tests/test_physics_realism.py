@@ -143,46 +143,42 @@ def test_yanking_a_held_needle_past_the_weld_force_drops_it_and_counts_the_drop(
     assert info["drops"] == 1
 
 
-def test_a_needle_dropped_from_60_mm_lands_on_the_pad(needle_pick):
-    e, u = needle_pick, needle_pick.unwrapped
-    e.reset(seed=7)
+def _throw_needle(env, height_m: float, euler, velocity=(0.0, 0.0, 0.0), spin=(0.0, 0.0, 0.0), steps: int = 12):
+    """Put the needle ``height_m`` above the pad in the pose ``euler`` with the given velocity (real m/s) and spin
+    (rad/s), let it fall for ``steps`` control steps, and return its deepest overlap with any static body (real m)."""
+    u = env.unwrapped
     c = u.client
     pos = np.asarray(c.getBasePositionAndOrientation(u.object_id)[0]) / SCALING
-    pos[2] = objects.PAD_TOP_Z + 0.003 + 0.06
-    c.resetBasePositionAndOrientation(u.object_id, (pos * SCALING).tolist(), c.getQuaternionFromEuler([0.4, 0.3, 1.0]))
+    pos[2] = objects.PAD_TOP_Z + height_m
+    c.resetBasePositionAndOrientation(u.object_id, (pos * SCALING).tolist(), c.getQuaternionFromEuler(euler))
+    c.resetBaseVelocity(u.object_id, (np.asarray(velocity) * SCALING).tolist(), list(spin))
     c.changeDynamics(u.object_id, -1, activationState=c.ACTIVATION_STATE_WAKE_UP)
     statics = [b for b in range(c.getNumBodies()) if b not in (u.psm.body, u.object_id, u.goal_marker)]
     overlap = DeepestOverlap([u.object_id], statics)
     u.substep_hook = overlap
-    for _ in range(12):
-        e.step(np.array([0.0, 0.0, 0.0, 0.0, 1.0], np.float32))
+    for _ in range(steps):
+        env.step(np.array([0.0, 0.0, 0.0, 0.0, 1.0], np.float32))
     u.substep_hook = None
-    rest = np.asarray(c.getBasePositionAndOrientation(u.object_id)[0]) / SCALING
+    return overlap.deepest
+
+
+def test_a_needle_dropped_from_60_mm_lands_on_the_pad(needle_pick):
+    e, u = needle_pick, needle_pick.unwrapped
+    e.reset(seed=7)
+    deepest = _throw_needle(e, 0.003 + 0.06, [0.4, 0.3, 1.0])
+    rest = np.asarray(u.client.getBasePositionAndOrientation(u.object_id)[0]) / SCALING
     assert rest[2] > objects.PAD_TOP_Z                     # above the pad, not in or under it
-    assert overlap.deepest < 1e-3
+    assert deepest < 1e-3
 
 
 def test_a_spinning_needle_lands_on_the_pad_without_sinking_in(needle_pick):
     """A needle flicked by a poke tumbles; its ends move several times faster than its centre of mass, and the
-    adaptive sub-steps must refine for them (1.9 mm into the pad when only the centre's speed counted)."""
-    e, u = needle_pick, needle_pick.unwrapped
-    c = u.client
-    statics = None
+    adaptive sub-steps must refine for them (they sank 1.9–2.2 mm into the pad when only the centre's speed counted)."""
     worst = 0.0
     for seed in range(4):
-        e.reset(seed=seed)
-        pos = np.asarray(c.getBasePositionAndOrientation(u.object_id)[0]) / SCALING
-        pos[2] = objects.PAD_TOP_Z + 0.02
-        c.resetBasePositionAndOrientation(u.object_id, (pos * SCALING).tolist(),
-                                          c.getQuaternionFromEuler([0.3 * seed, 0.2, 1.0]))
-        c.resetBaseVelocity(u.object_id, [0.0, 0.0, -0.05 * SCALING], [20.0, 8.0 * (seed % 2 - 0.5), 0.0])
-        statics = [b for b in range(c.getNumBodies()) if b not in (u.psm.body, u.object_id, u.goal_marker)]
-        overlap = DeepestOverlap([u.object_id], statics)
-        u.substep_hook = overlap
-        for _ in range(4):
-            e.step(np.array([0.0, 0.0, 0.0, 0.0, 1.0], np.float32))
-        u.substep_hook = None
-        worst = max(worst, overlap.deepest)
+        needle_pick.reset(seed=seed)
+        worst = max(worst, _throw_needle(needle_pick, 0.02, [0.3 * seed, 0.2, 1.0], velocity=(0.0, 0.0, -0.05),
+                                         spin=(20.0, 8.0 * (seed % 2 - 0.5), 0.0), steps=4))
     assert worst < 1e-3, f"a spinning needle sank {1000 * worst:.2f} mm into the pad"
 
 
