@@ -11,7 +11,7 @@ from surrol_data.collect.devices.base import BUTTON_CLUTCH, DeviceError, DeviceF
 from surrol_data.collect.mapping import ActionMapper, MappingSettings
 from surrol_data.collect.operator import PROFILES, SimulatedOperator, operator_params
 from surrol_data.collect.operator.motor import Hand, MotorNoise, fitts_duration, minimum_jerk
-from surrol_data.collect.operator.operator import DEVICE_HALF_RANGE
+from surrol_data.collect.operator.operator import DEVICE_HALF_RANGE, episode_key
 from surrol_data.datasets.trajectory import Trajectory, TrajectoryBuilder
 from surrol_data.evaluation.metrics import Proficiency, trajectory_proficiency
 from surrol_data.evaluation.rollout import ORACLE, rollout
@@ -153,6 +153,24 @@ def test_same_operator_same_episode_same_frames(pick_env):
     other = make_operator(pick_env, "novice", "ann", seed=8)
     _, frames = run_episode(pick_env, other, seed=3, horizon=60)
     assert not np.array_equal(np.array([f.to_row() for f in frames]), rows[0])
+
+
+def test_episode_key_is_the_scene_not_the_arithmetic(pick_env):
+    """The operator's noise for an episode is drawn from a key of the first observation rounded to 1 µm / 1 µrad:
+    numerical zeros of either sign (a tool pointing straight down reads roll/pitch/yaw of ±1e-17 rad, and their
+    bits depend on the arm's base rotation) give the same person-episode, a scene 0.1 mm apart another one."""
+    obs, _ = pick_env.reset(seed=3)
+    key = episode_key(obs)
+    state = np.asarray(obs["observation"], np.float64)
+    noisy = state.copy()
+    noisy[3:6] = [-7e-17, 1e-16, -0.0]
+    noisy[:3] += 3e-12
+    assert episode_key({**obs, "observation": noisy.astype(np.float32)}) == key
+    assert episode_key({**obs, "observation": noisy}) == key
+    moved = state.copy()
+    moved[7] += 1e-4
+    assert episode_key({**obs, "observation": moved}) != key
+    assert episode_key(pick_env.reset(seed=4)[0]) != key
 
 
 def test_reach_task_without_a_plan():
