@@ -26,13 +26,12 @@ task (two operators made the hands of one person with :meth:`SimulatedOperator.w
 plan's steps), or the camera of an ECM task (its one step: null the task's ``action_error``).
 
 The operator keeps its own clock; every random draw comes from a generator seeded by (seed, operator
-identity, the episode's first observation rounded to 1 µm / 1 µrad: see ``episode_key``), so the same operator on
-the same episode makes the same frames.
+identity, arm, the task's random generator as the episode's reset left it: see ``episode_key``), so the same operator
+on the same episode makes the same frames, whatever the physics computes.
 """
 
 from __future__ import annotations
 
-import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -96,20 +95,18 @@ class _Subgoal:
                         self.snapshot, self.placing, self.object_yaw)
 
 
-# The episode key rounds the first observation to this (1 µm, 1 µrad) before hashing it: the scene a person sees,
-# not the last bits of the arithmetic that computed it. Hashing the raw float32 bytes made every episode a
-# different draw of the person's noise when only numerical zeros changed: with the reference's PSM base yaw the
-# tool's first roll/pitch/yaw read −7e-17 instead of −5e-17 rad, and NeedlePick's novice succeeded in 4 of 8
-# episodes instead of 7 (seeds 1000–1007) with the same scene and physics.
-EPISODE_KEY_RESOLUTION_DECIMALS = 6
+def episode_key(task) -> list[int]:
+    """What tells one episode from another for the operator's noise: the task's random generator as its reset left
+    it (PCG64 state and increment), i.e. the reset's seed and the draws that set the scene up.
 
-
-def episode_key(obs: dict) -> int:
-    """A stable 32-bit key of an episode from its first observation and goal (see EPISODE_KEY_RESOLUTION_DECIMALS).
-    Adding 0.0 turns a rounded −0.0 into 0.0, so a numerical zero's sign does not count either."""
-    parts = (np.round(np.asarray(obs[k], np.float64), EPISODE_KEY_RESOLUTION_DECIMALS) + 0.0
-             for k in ("observation", "desired_goal"))
-    return zlib.crc32(b"".join(p.tobytes() for p in parts))
+    Not the observation: a key hashed from the first observation's float32 bits made every episode another draw of
+    the person's noise whenever the physics changed in the last bits. With the reference's PSM base yaw the tool's
+    first roll/pitch/yaw read −7e-17 instead of −5e-17 rad (numerical zeros), and NeedlePick's novice succeeded in 4
+    of 8 episodes instead of 7 (seeds 1000–1007) on the same scenes; rounding the observation to 1 µm / 1 µrad did
+    not help where the reset itself settles an arm under load (NeedleRings' first observation moved by 2e-5), so
+    the key does not read the physics at all. An unseeded reset advances the generator: a new key."""
+    state = task.np_random.bit_generator.state["state"]
+    return [int(state["state"]), int(state["inc"])]
 
 
 class Team:
@@ -234,7 +231,9 @@ class SimulatedOperator(Device):
 
     # ------------------------------------------------------------------ episode set-up
     def _begin_episode(self, obs: dict, plan: list[dict]) -> None:
-        self._rng = np.random.default_rng(np.random.SeedSequence([self.seed, self._identity, episode_key(obs)]))
+        # (The arm too: the two hands of one person on one episode move independently.)
+        self._rng = np.random.default_rng(np.random.SeedSequence([self.seed, self._identity, self.arm,
+                                                                  *episode_key(self.env)]))
         p = self.params
         start = self._rng.normal(0.0, 1.0, POSE_DIM) * np.array([5.0, 5.0, 3.0, 0.05])   # where the hand rests
         self._episode_start, self._step = self._clock, 0
