@@ -11,7 +11,7 @@ from surrol_data.collect.devices.base import BUTTON_CLUTCH, DeviceError, DeviceF
 from surrol_data.collect.mapping import ActionMapper, MappingSettings
 from surrol_data.collect.operator import PROFILES, SimulatedOperator, operator_params
 from surrol_data.collect.operator.motor import Hand, MotorNoise, fitts_duration, minimum_jerk
-from surrol_data.collect.operator.operator import DEVICE_HALF_RANGE
+from surrol_data.collect.operator.operator import DEVICE_HALF_RANGE, episode_key
 from surrol_data.datasets.trajectory import Trajectory, TrajectoryBuilder
 from surrol_data.evaluation.metrics import Proficiency, trajectory_proficiency
 from surrol_data.evaluation.rollout import ORACLE, rollout
@@ -153,6 +153,44 @@ def test_same_operator_same_episode_same_frames(pick_env):
     other = make_operator(pick_env, "novice", "ann", seed=8)
     _, frames = run_episode(pick_env, other, seed=3, horizon=60)
     assert not np.array_equal(np.array([f.to_row() for f in frames]), rows[0])
+
+
+def test_episode_key_is_the_reset_not_the_physics(monkeypatch):
+    """The operator's noise for an episode is keyed by the task's random generator as the reset left it, not by the
+    observation: an arm built with another base yaw (the same scene, the physics different in its last digits, and
+    NeedleRings' first observation, settled with the needle in hand, 2e-5 apart) gives the same person-episode;
+    another seed, or an unseeded reset, another."""
+    from surrol_data.envs import bimanual_env
+
+    def first(yaw1, yaw2, seed):
+        monkeypatch.setattr(bimanual_env, "PSM1_BASE_YAW_RAD", yaw1)
+        monkeypatch.setattr(bimanual_env, "PSM2_BASE_YAW_RAD", yaw2)
+        env = gym.make("SurRoL/NeedleRings-v0")
+        try:
+            obs, _ = env.reset(seed=seed)
+            key = episode_key(env.unwrapped)
+            env.reset()
+            return obs["observation"], key, episode_key(env.unwrapped)
+        finally:
+            env.close()
+
+    obs_a, key_a, next_a = first(0.0, 0.0, 3)
+    obs_b, key_b, _ = first(np.deg2rad(-110.0), np.deg2rad(-70.0), 3)
+    assert np.abs(obs_a - obs_b).max() > 1e-6 and key_a == key_b
+    assert next_a != key_a and first(0.0, 0.0, 4)[1] != key_a
+
+
+def test_two_hands_of_one_person_draw_their_own_noise():
+    env = gym.make("SurRoL/NeedleRegrasp-v0")
+    try:
+        ops = [SimulatedOperator(env.unwrapped, "novice", "n", MappingSettings(), 0, arm=arm) for arm in (0, 1)]
+        obs, info = env.reset(seed=0)
+        for op in ops:
+            op.connect()
+            op.observe(obs, info)
+        assert ops[0]._rng.random() != ops[1]._rng.random()
+    finally:
+        env.close()
 
 
 def test_reach_task_without_a_plan():

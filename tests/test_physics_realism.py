@@ -258,7 +258,7 @@ def test_a_grasp_holds_each_blade_where_it_stopped():
 def test_reference_base_placement_is_consistent_and_keeps_commands_cartesian():
     """The reference puts PSM1's base at (0.05, 0.24, 0.8524) yawed −110° and PSM2's at (0.05, −0.24, 0.8524) yawed
     −70°, each RCM 0.4864 m along its base's y axis: the RCM points are ours, and an arm built with that yaw puts its
-    tip where it is commanded (the envs use the yaw only with ``psm_env.USE_REFERENCE_BASE_YAW``)."""
+    tip where it is commanded; the envs build their arms with it (``psm_env.USE_REFERENCE_BASE_YAW``)."""
     from surrol_data.envs import kinematics as kin
     from surrol_data.envs.bimanual_env import PSM2_RCM
     from surrol_data.envs.psm import Psm
@@ -270,7 +270,13 @@ def test_reference_base_placement_is_consistent_and_keeps_commands_cartesian():
         rot = kin.rot_z3(np.deg2rad(yaw_deg))
         assert np.allclose(np.asarray(base) + rot @ [0.0, 0.4864, 0.0], rcm, atol=1e-3)
         assert yaw == pytest.approx(np.deg2rad(yaw_deg))
-    assert PSM1_BASE_YAW_RAD == (REFERENCE_PSM1_BASE_YAW_RAD if USE_REFERENCE_BASE_YAW else 0.0)
+    assert USE_REFERENCE_BASE_YAW and PSM1_BASE_YAW_RAD == REFERENCE_PSM1_BASE_YAW_RAD
+    for task, yaws in (("NeedlePick", (-110.0,)), ("BiPegTransfer", (-110.0, -70.0))):
+        env = gym.make(f"SurRoL/{task}-v0")
+        arms = getattr(env.unwrapped, "psms", None) or (env.unwrapped.psm,)
+        built = [np.rad2deg(np.arctan2(a.world_T_rcm[1, 0], a.world_T_rcm[0, 0])) for a in arms]
+        env.close()
+        assert np.allclose(built, yaws), (task, built)
     client = physics.make_client()
     psm = Psm(client, PSM1_RCM, REFERENCE_PSM1_BASE_YAW_RAD, visual=False)
     target = kin.pose_from(np.array([0.55, 0.01, 0.70]), tool_down(0.3))

@@ -26,12 +26,16 @@ from surrol_data.envs.units import ACTION_POSITION_M, ACTION_YAW_RAD, SCALING, S
 
 # PSM1's remote centre of motion (real metres) and the tip workspace the tasks sample from.
 PSM1_RCM = np.array([0.507, 0.0736, 0.8524])
-# The RCM frame's yaw about the vertical. The reference's base placement (PSM1 −110°, PSM2 −70°) makes joint values
-# match the dVRK's for the same tip pose, and commands are Cartesian (the IK is exact either way), so the oracles
-# do not see it (all ≥ 99 % over 100 seeds with it). It is off until one effect is understood: with it the
-# simulated operators' outcomes change (NeedlePick novice 4 of 8 episodes instead of 7, seeds 1000–1007; the
-# MatchBoard expert loses seed 1000), with no command refused and no roll wrap-around.
-USE_REFERENCE_BASE_YAW = False
+# The RCM frame's yaw about the vertical: the reference's base placement (PSM1 −110°, PSM2 −70°), so joint values
+# match the dVRK's for the same tip pose. Commands are Cartesian and the IK is exact either way, so only how a move
+# splits over the joints changes. Measured turned vs unturned (same seeds): the same 40 random actions put the tip
+# 0.6 µm apart after one step, 0.3 mm after 40; the worst unit-box tracking error per PSM task (physics_realism's
+# tracking scenario, 30 moves) at most 2.76 % vs 2.71 %, no task's 0.06 points apart; oracle success over seeds
+# 0–99 unchanged on all 15 tasks; the simulated operators (seeds 0–19, both skills, the 11 PSM tasks) 407 vs 401
+# successes of 440, 428 attempts ending the same way. Their outcomes once seemed to change with it (NeedlePick
+# novice 4 of 8 episodes instead of 7): the operator keyed its noise by the first observation's bits, see
+# collect/operator's episode_key. False builds the RCM frames unturned (world-aligned), as before.
+USE_REFERENCE_BASE_YAW = True
 REFERENCE_PSM1_BASE_YAW_RAD = float(np.deg2rad(-110.0))
 REFERENCE_PSM2_BASE_YAW_RAD = float(np.deg2rad(-70.0))
 PSM1_BASE_YAW_RAD = REFERENCE_PSM1_BASE_YAW_RAD if USE_REFERENCE_BASE_YAW else 0.0
