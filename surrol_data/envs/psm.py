@@ -57,6 +57,12 @@ _BLADE_LEVERS = (1.0 / SCALING, 0.002, kin.WRIST_LENGTH + kin.TIP_LENGTH, kin.TI
 _JAW_HALF = np.array([0.0007, 0.0051, 0.0009])
 
 
+def _joint_speed_bound(state, target: float, cap: float, ramp_s: float) -> float:
+    """How fast a joint may move over the next control period: the faster of its current speed and the speed that
+    covers the rest of its move within the target ramp, capped by its limit (``state``: PyBullet's joint state)."""
+    return max(abs(state[1]), min(cap, abs(target - state[0]) / ramp_s))
+
+
 def matrix_to_quat(m: np.ndarray):
     # PyBullet has no matrix→quaternion helper; a trace-based conversion, robust near 180° rotations.
     tr = m[0, 0] + m[1, 1] + m[2, 2]
@@ -282,7 +288,7 @@ class Psm:
         levers = (reach, reach) + _BLADE_LEVERS
         bound = 0.0
         for state, target, cap, lever in zip(states, targets, caps, levers):
-            bound += max(abs(state[1]), min(cap, abs(target - state[0]) / ramp)) * lever
+            bound += _joint_speed_bound(state, target, cap, ramp) * lever
         return bound
 
     def held_speed_bound(self, dt: float, offset_m: float, states: tuple, blade_bound: float) -> float:
@@ -295,7 +301,7 @@ class Psm:
         ramp = physics.RAMP_STEPS * dt
         turn = 0.0
         for j in _HELD_REVOLUTE:
-            turn += max(abs(states[j][1]), min(caps[j], abs(targets[j] - states[j][0]) / ramp))
+            turn += _joint_speed_bound(states[j], targets[j], caps[j], ramp)
         return blade_bound + offset_m * turn
 
     def jaw_angle(self) -> float:
