@@ -277,12 +277,13 @@ def probed_episodes(env, task: str, res: Result, seeds, check: bool = True):
     env.close()
 
 
-def run_policy(task: str, policy: str, episodes: int) -> Result:
+def run_policy(task: str, policy: str, episodes: int, seeds=None) -> Result:
+    """``episodes`` seeded episodes (seeds 0, 1, …; or the given ``seeds``) of the policy, probed."""
     env = gym.make(env_id(task))
     u = env.unwrapped
     res = Result(task, policy)
     dim = env.action_space.shape[0]
-    for seed, obs, probe in probed_episodes(env, task, res, range(episodes)):
+    for seed, obs, probe in probed_episodes(env, task, res, range(episodes) if seeds is None else seeds):
         rng = np.random.default_rng(1000 + seed)
         done, hold, action = False, 0, np.zeros(dim)
         info = {}

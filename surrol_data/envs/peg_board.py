@@ -128,7 +128,7 @@ def make_peg_board(client, origin_m=BOARD_ORIGIN, visual: bool = True) -> PegBoa
     # A static rigid body (maximal coordinates) marked asleep: Bullet then skips its contact pairs with
     # sleeping blocks altogether. As a fixed-base multibody, each resting block cost ~3 µs per physics step.
     body = client.createMultiBody(0.0, col, vis, (origin * S).tolist(), useMaximalCoordinates=True)
-    client.changeDynamics(body, -1, lateralFriction=physics.OBJECT_FRICTION,
+    client.changeDynamics(body, -1, lateralFriction=physics.PEG_BOARD_FRICTION,
                           activationState=pb.ACTIVATION_STATE_SLEEP)
     return PegBoard(body=body, origin=origin)
 

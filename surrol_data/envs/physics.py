@@ -58,9 +58,10 @@ TIME_STEP = CONTROL_PERIOD_S / SUBSTEPS
 # 0.8); at ERP 1.0 (100 iterations) a poked needle was flung off the pad spinning at 18 rad/s.
 # Cost, oracle episodes of the same run (5 × 3, medians): NeedlePick −3 %, PegTransfer −2 %, GauzeRetrieve −12 %,
 # BiPegTransfer −10 % of the steps/s at (20, 0.2); ERP alone costs nothing measurable. Still open at (50, 0.8), 30
-# episodes on the final code: under bang-bang input a block pinched between the tool and a peg sank 2–3 mm into the
-# peg and was flung off the board (PegTransfer seeds 2 and 19, 1 of 30 BiPegTransfer episodes); 100 iterations kept
-# those two seeds clean but pinched another (PegTransfer bang-bang, 30 episodes: 3.18 mm, one block flung off).
+# episodes: under bang-bang input a block jammed on a peg sank 2–3 mm into it and was flung off the board (PegTransfer
+# seeds 2 and 19, 1 of 30 BiPegTransfer episodes); 100 iterations kept those two seeds clean but jammed another
+# (PegTransfer bang-bang, 30 episodes: 3.18 mm, one block flung off). That was friction, not the iterations: see
+# PEG_BOARD_FRICTION.
 SOLVER_ITERATIONS = 50
 CONTACT_ERP = 0.8
 SETTLE_STEPS = 4                  # physics steps after a reset before the first observation
@@ -140,6 +141,20 @@ FLOOR_COLLISION_DEPTH_M = 0.01
 # Contact and grasp.
 JAW_FRICTION = 1.0
 OBJECT_FRICTION = 1.0
+# The peg board's: PyBullet's default, which the reference's board (no friction in its URDF) has, against the blocks'
+# 1.0 (theirs sets it), i.e. μ = 0.5 between them (Bullet multiplies the two). At 1.0 on both, a block could jam on its
+# peg: traced at every physics step (PegTransfer bang-bang, seed 2), a swipe turned a block 20° about its peg and the
+# tool left it holding the peg in a corner of its hole; touching nothing but the board, its contacts with the peg and
+# with the floor pushed each other in (normal forces 0.5 → 40 N on a 0.1 N block; μ = 1 locks a right-angled wedge:
+# the friction of each contact stops the other's correction), sank in ~0.03 mm per physics step, and at 2.8 mm the
+# correction flung the block off the board at 0.9 m/s, spinning at 50 rad/s. benchmarks/physics_realism.py, 30
+# episodes, the failing ones at μ 1.0: PegTransfer bang-bang seeds 2 and 19 (block ↔ board 2.8, 2.9 mm, flung off) and
+# 26 (the tool pressed 2.1 mm into a jammed block), BiPegTransfer bang-bang seed 24 (3.1 mm, flung off); at 0.5 each
+# ≤ 0.79 mm (block ↔ board ≤ 0.21), nothing flung. Rejected: Bullet's pyramid friction instead of its cone (PyBullet's
+# enableConeFriction=0, which bullet3 issue #1473 suggests for contacts that gain energy) mended those, but jammed
+# PegTransfer random seed 29 and BiPegTransfer bang-bang seeds 2, 3, 5, 27 (2.7–5.0 mm; at board μ 0.5 with the cone
+# they read ≤ 0.2 mm); friction ERP 0, split impulse and a zero restitution threshold changed nothing.
+PEG_BOARD_FRICTION = 0.5
 # A blade within this distance of the object touches it (real metres). 0.8 mm (the old value) clamped the
 # jaw at 15° on a 1.24 mm needle wire (the blades had not reached it); 0.2 mm reads ~9° (the wire's width).
 # A closing jaw near its object is also sub-stepped so that a blade comes no nearer than this per physics step
