@@ -133,9 +133,12 @@ class Probe:
                 self._held.pop(k, None)
                 continue
             rel = relative_pose(c, g.psm.body, g.object_id, getattr(g, "object_link", -1))
-            first = self._held.setdefault(k, (g.constraint, rel))
-            if first[0] != g.constraint:
-                self._held[k] = first = (g.constraint, rel)
+            # A new hold (grip, take) starts a new reference; a carried object's weld restored is the same hold
+            # (grasp.py, 6. Carry: the constraint is re-made with the frame it had).
+            hold = g.hold_serial
+            first = self._held.setdefault(k, (hold, rel))
+            if first[0] != hold:
+                self._held[k] = first = (hold, rel)
             slip = float(np.linalg.norm(rel - first[1])) / SCALING
             self.step_slip[k] = max(self.step_slip.get(k, 0.0), slip)
         self.time += time.perf_counter() - t

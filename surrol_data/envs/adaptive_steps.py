@@ -23,7 +23,7 @@ import math
 
 from surrol_data.envs import physics
 from surrol_data.envs.physics import pb
-from surrol_data.envs.psm import JAW_JOINTS
+from surrol_data.envs.psm import EEF_LINK, JAW_JOINTS
 from surrol_data.envs.tool_sweep import ToolSweep
 from surrol_data.envs.units import SCALING
 
@@ -35,6 +35,18 @@ DIRECTIONAL_TOOL_TEST = True
 # Leave an object out of the per-step speed checks for a period in which the tool holding it is too slow to make it
 # fast (see SubstepPlanner._tool_travel); False: check every object at every coarse step.
 SKIP_SLOW_HELD_OBJECTS = True
+# Carry a welded object kinematically (grasp.py, 6. Carry) for a control period in which nothing but its hand can
+# come near it, in the envs that ask for it (``carry=True``); False: always by the weld.
+CARRY_CLEAR_HELD_OBJECTS = True
+# What a carried object keeps clear of everything else over the period, beyond the most its hand may move it
+# (real metres): the weld is back before anything comes nearer than this. A margin, not a tuned value: twice the
+# contact-overlap target; the oracle's gauze is 2.8 mm over the floor after its first welded step (it is carried
+# from the next), and a carried gauze driven into the tray at full speed is back on its weld in time to end as deep
+# as one never carried (tests/test_kinematic_carry.py).
+CARRY_CLEARANCE_M = 0.002
+# The tool's colliding links that turn relative to the wrist-yaw link by wrist joints only (the shaft on the roll
+# link, the wrist pitch link).
+_WRIST_LINKS = (3, 4)
 # Tool links whose sweep matters (wrist pitch link, both jaws).
 _TOOL_LINKS = (4, 6, 7)
 # Spin (rad/s) below which an object's far points move no faster than its centre, to within the travel limits.
@@ -42,9 +54,11 @@ _SPIN_NEGLIGIBLE_RAD_S = 0.01
 
 
 class SubstepPlanner:
-    def __init__(self, client, grasps, dynamic_bodies):
+    def __init__(self, client, grasps, dynamic_bodies, carry: bool = False):
         """``grasps``: each arm's grasp (its ``psm`` and what it holds); ``dynamic_bodies``: a callable returning
-        the scene's movable object ids."""
+        the scene's movable object ids; ``carry``: a single arm's welded object may be carried kinematically while
+        nothing can come near it (``CARRY_CLEAR_HELD_OBJECTS``)."""
+        self.carry = carry and len(grasps) == 1
         self.client = client
         self.grasps = grasps
         self.dynamic_bodies = dynamic_bodies
@@ -53,19 +67,96 @@ class SubstepPlanner:
         self._bodies: list[int] = []
         self._closing: list = []   # grasps whose jaws close this control period and hold nothing yet
         self._slow_held: set[int] = set()
+        self._motion: dict = {}    # per period: each tool's joint states, speed bound and sweep (see _tool_motion)
+        self.carried: list = []    # grasps whose objects are carried kinematically this period
         self.refined_steps = 0     # coarse steps that were split (for benchmarks)
+        self.carried_periods = 0   # control periods with a carried object (for benchmarks)
 
     def plan_tools(self, dt: float, closing=()) -> None:
         """Once per control period, before its physics steps: the refinement the tools' moves need. Their speed
         during the period is set by the ramped joint targets (known now), so one test per period suffices.
         ``closing``: the grasps whose jaws close during the period without holding anything yet."""
         self._slow_held = set()
+        self._motion = {}
+        if self.carry:
+            self._plan_carry(dt)
         self._tool_k = self._k(self._tool_travel(dt), physics.MAX_TRAVEL_PER_STEP_M)
         bodies = self.dynamic_bodies()
+        if self.carried:
+            # A carried object touches nothing this period: no speed checks (it moves with the wrist exactly).
+            self._slow_held.update(g.object_id for g in self.carried)
         if self._slow_held and bodies:
             bodies = [b for b in bodies if b not in self._slow_held]
         self._bodies = bodies
         self._closing = [g for g in closing if g.object_id >= 0]
+
+    def _plan_carry(self, dt: float) -> None:
+        """Carry a welded object for the period if nothing but its hand's blades can come within the period's reach
+        of it (the most its hand may move it, plus ``CARRY_CLEARANCE_M``); else have it held by the weld."""
+        self.carried = []
+        for grasp in self.grasps:
+            if not CARRY_CLEAR_HELD_OBJECTS:
+                grasp.restore()
+                continue
+            if grasp.constraint is None or not grasp.welded or grasp.passive or grasp.object_link >= 0:
+                continue
+            psm = grasp.psm
+            states, bound = self._tool_motion(psm, dt)
+            held = psm.held_speed_bound(dt, grasp.held_offset_m(), states, bound)
+            reach = (held * dt * physics.SUBSTEPS + CARRY_CLEARANCE_M) * SCALING
+            if self._clear(grasp, states, dt * physics.SUBSTEPS, reach):
+                grasp.carry()
+                grasp.plan_load()
+                self.carried.append(grasp)
+                self.carried_periods += 1
+            else:
+                grasp.restore()
+
+    def _clear(self, grasp, states, period: float, reach: float) -> bool:
+        """Can nothing come within ``CARRY_CLEARANCE_M`` of the held object within the period? ``reach`` (scaled):
+        the most the hand may move it meanwhile, plus that clearance. A body within reach counts only if the object
+        moves towards it fast enough to close the gap (less the clearance) within the period: the object is fixed to
+        the wrist-yaw link, so the tool's sweep bounds its motion as it bounds a blade's (tool_sweep.py). Without
+        the direction, GauzeRetrieve's lifted gauze, moving up and away from the tray floor, stayed on the weld for
+        6 more steps per episode (seeds 0–1), a third of the steps it is held."""
+        body, psm = grasp.object_id, grasp.psm
+        candidates, boxes = self._candidates(body, (-1,), reach, ignore={psm.body})
+        clearance = CARRY_CLEARANCE_M * SCALING
+        sweep = self._sweep(psm, states, period)
+        # The hand's own colliding links (the shaft on link 3, the wrist on link 4; the blades do not collide with
+        # what they hold) move relative to the object only by the wrist joints between them and the wrist-yaw link.
+        for p in pb.getClosestPoints(body, psm.body, reach, physicsClientId=self._cid):
+            link = p[4]
+            if link in JAW_JOINTS:
+                continue
+            if link not in _WRIST_LINKS or p[8] - clearance <= sweep.turn_reach(range(link + 1, EEF_LINK + 1),
+                                                                                 boxes[0]):
+                return False
+        for other in candidates:
+            for p in pb.getClosestPoints(body, other, reach, physicsClientId=self._cid):
+                # (p[7]: the normal from the other body to the object; ``may_close`` takes the object as a part of
+                # the wrist-yaw link, its bounding box for the link's.)
+                if sweep.may_close(EEF_LINK, p[7], p[8] - clearance, boxes[0]):
+                    return False
+        return True
+
+    def _tool_motion(self, psm, dt: float) -> tuple:
+        """(joint states, blade speed bound) of a tool for this period, asked for once (the carry and the tools'
+        tests both need them; nothing moves the joints in between)."""
+        key = (psm, dt)
+        motion = self._motion.get(key)
+        if motion is None:
+            states = psm.moving_joint_states()
+            motion = self._motion[key] = (states, psm.blade_speed_bound(dt, states))
+        return motion
+
+    def _sweep(self, psm, states, period: float) -> ToolSweep:
+        """The tool's sweep over this period, built once (see _tool_motion)."""
+        key = (psm, "sweep")
+        sweep = self._motion.get(key)
+        if sweep is None:
+            sweep = self._motion[key] = ToolSweep(psm, states, period)
+        return sweep
 
     def refinement(self, dt: float) -> int:
         """How many fine steps the next coarse step of ``dt`` seconds needs (1 = none)."""
@@ -141,8 +232,7 @@ class SubstepPlanner:
         worst = 0.0
         for grasp in self.grasps:
             psm = grasp.psm
-            states = psm.moving_joint_states()
-            bound = psm.blade_speed_bound(dt, states)
+            states, bound = self._tool_motion(psm, dt)
             travel = bound * dt
             if SKIP_SLOW_HELD_OBJECTS and grasp.attached and grasp.object_link < 0:
                 held = psm.held_speed_bound(dt, grasp.held_offset_m(), states, bound)
@@ -207,7 +297,7 @@ class SubstepPlanner:
                 if link not in boxes:
                     continue
                 if sweep is None:
-                    sweep = ToolSweep(psm, states, period)
+                    sweep = self._sweep(psm, states, period)
                 if sweep.may_close(link, p[7], p[8], boxes[link]):
                     return True
         return False

@@ -33,6 +33,30 @@
    blade inside the block at its hand-over; most of it came from the grip itself, see 2 and the blade hold, and
    with those fixed one weld or two both read ≤ 0.4 mm on the oracle: benchmarks/physics_realism.py, 5 episodes.)
 
+6. **Carry.** A welded object that nothing but the holding hand can come near within the coming control period
+   moves with the wrist exactly as the weld holds it (the weld's give is < 0.1 mm at a 50 g gauze), so for that
+   period it may be carried kinematically instead (``carry``, chosen by adaptive_steps.SubstepPlanner where the
+   env asks for it): the constraint is taken out of the solver, the object out of the dynamics (massless, still,
+   not colliding with the hand) and put at its pose in the hand after the period's physics steps (after each of
+   them while a probe looks: PsmEnv.substep_hook), and the wrist link carries the object's mass, inertia and weight
+   instead, so the arm is loaded as before. The constraint comes back (``restore``) with the frame it was made with
+   before any period in which something could come near the object, and before the grasp lets go; the object then
+   rejoins the dynamics where the hand has it, moving with the wrist.
+   Why: a JOINT_FIXED constraint on the arm makes every physics step cost ~1.7× (PyBullet's multibody constraint
+   rows are rebuilt every step and the solver runs all its iterations: 62 vs 37 µs a step), and in GauzeRetrieve's
+   oracle episodes two thirds of the steps carry the gauze, mostly in free space. While carried, the object is held
+   (``attached``), its slip stays what it was (nothing but the weld's force limit could make it slip, and nothing
+   pulls on it), and drops, release and the info are as before.
+   Measured (GauzeRetrieve, the only task that asks for it so far: PsmEnv.KINEMATIC_CARRY): 30 of the ~34 held steps
+   of an oracle episode carried, oracle steps/s ×1.19–1.22 (one process, 10 episodes × 5 rounds alternating on and
+   off, medians; three such runs); tip and gauze within 0.05 mm of the welded episode's at every step (seeds 0–4:
+   what remains is the weld's give, which the carry does not have). The load on the wrist link is what the weld
+   passed on to the arm (the 50 g gauze weighs 17 of its links, half the insertion motor's force limit); the motors,
+   stiff at these speeds, hardly feel it: without it the same probes (and bang-bang moves in free air, seeds 0–2)
+   came out within 0.013 mm of with it. It is kept for moves where the limits bind, at one PyBullet call a step.
+   Driven into the tray's floor or wall at full speed, the gauze ends as deep as on the weld (within 0.002 mm,
+   seeds 0–2); benchmarks/physics_realism.py reads the same rows as without the carry (30 episodes).
+
 PyBullet keys pair filters by body ids, which removed bodies hand on: envs release every grasp before they
 respawn bodies.
 """
@@ -53,6 +77,8 @@ _TOUCH = physics.GRASP_CONTACT_DISTANCE_M * SCALING
 _BLADE_LENGTH = physics.BLADE_LENGTH_M * SCALING
 _ACROSS = np.cos(np.deg2rad(45.0))   # contact normal within 45° of the inner-face normal
 _ORIGIN, _NO_TURN = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)
+_WORLD_FRAME = pb.WORLD_FRAME
+_HAND_LINKS = (3, 4)             # the tool's colliding links besides the blades: the shaft, the wrist
 # Direction from each blade towards the other, in the blade's link frame (blade 6 lies on +x, blade 7 on −x).
 _TOWARDS_OTHER = (-1.0, 1.0)
 
@@ -72,6 +98,13 @@ class Grasp:
         self.drops = 0                   # welds lost to force or slip while the jaw stayed closed
         self.peers: tuple[Grasp, ...] = ()   # the other arms' grasps in the scene (bimanual envs)
         self._held_at: np.ndarray | None = None
+        self.hold_serial = 0             # counts holds (grips, takes): a carry and its restore stay the same hold
+        self.carried = False             # carried kinematically for this control period (see 6. Carry)
+        self._frame = None               # (position, quaternion) in the wrist frame the constraint holds it at
+        self._carry_at = None            # (position, quaternion) in the wrist frame while carried
+        self._carry_load = None          # (object's mass, inertia, wrist link's mass, inertia) while carried
+        self._torque = _ORIGIN           # the object's weight's moment about the wrist link's origin, while carried
+        self._eef = None                 # the wrist link's frame when last asked for, while carried
 
     @property
     def attached(self) -> bool:
@@ -143,12 +176,105 @@ class Grasp:
             self.client.changeConstraint(self.constraint, maxForce=physics.GRASP_MAX_FORCE)
             self.welded = True
 
+    # ------------------------------------------------------------------ 6. Carry
+    def carry(self) -> None:
+        """Carry the welded object kinematically from now on (see 6. Carry), at its present pose in the hand."""
+        if self.carried or self.constraint is None or not self.welded or self.passive or self.object_link >= 0:
+            return
+        c, cid, body, obj = self.client, self.client._client, self.psm.body, self.object_id
+        eef = pb.getLinkState(body, EEF_LINK, 0, 1, cid)
+        self._eef = (eef[4], eef[5])
+        inv_pos, inv_quat = pb.invertTransform(eef[4], eef[5])
+        self._carry_at = pb.multiplyTransforms(inv_pos, inv_quat, *pb.getBasePositionAndOrientation(obj, cid))
+        pb.removeConstraint(self.constraint, physicsClientId=cid)
+        self.carried = True
+        info = pb.getDynamicsInfo(obj, -1, physicsClientId=cid)
+        link = pb.getDynamicsInfo(body, EEF_LINK, physicsClientId=cid)
+        mass, own = info[0], np.asarray(info[2])
+        # The wrist link takes the object's mass and its inertia about the link's origin (its own about its centre,
+        # turned into the link frame, plus the parallel-axis term; PyBullet keeps a diagonal, so the products of
+        # inertia are left out), so the force-limited motors accelerate what they accelerated through the weld.
+        # (PyBullet reports a base's pose at its inertial frame, whose axes are the principal ones.)
+        r = np.asarray(self._carry_at[0])
+        turn = np.asarray(pb.getMatrixFromQuaternion(self._carry_at[1])).reshape(3, 3)
+        inertia = np.diag(turn @ np.diag(own) @ turn.T) + mass * (r @ r - r * r)
+        self._carry_load = (mass, tuple(info[2]), link[0], tuple(link[2]))
+        c.changeDynamics(body, EEF_LINK, mass=link[0] + mass,
+                         localInertiaDiagonal=(np.asarray(link[2]) + inertia).tolist())
+        # The object itself leaves the dynamics: massless and still, it is neither pulled by gravity nor moved by the
+        # solver; ``follow`` puts it where the hand has it.
+        c.changeDynamics(obj, -1, mass=0.0)
+        pb.resetBaseVelocity(obj, _ORIGIN, _ORIGIN, cid)
+        self._set_carry_collisions(False)
+
+    def plan_load(self) -> None:
+        """Once per control period while carried: the moment that puts the object's weight, which acts on the mass
+        added at the wrist link's origin, where the object's centre is (its offset turns with the wrist by
+        little within a period, as the arm's own gravity compensation assumes: Psm.plan_gravity_compensation)."""
+        # (The wrist's frame as ``carry`` or the last ``follow`` found it: the joints have not moved since.)
+        origin, turn = self._eef
+        centre = pb.multiplyTransforms(origin, turn, *self._carry_at)[0]
+        rx, ry = centre[0] - origin[0], centre[1] - origin[1]
+        weight = self._carry_load[0] * physics.GRAVITY[2]        # along z (negative)
+        self._torque = (ry * weight, -rx * weight, 0.0)          # r × (0, 0, weight)
+
+    def load_wrist(self) -> None:
+        """Before each physics step while carried (forces last one step in PyBullet)."""
+        pb.applyExternalTorque(self.psm.body, EEF_LINK, self._torque, _WORLD_FRAME, self.client._client)
+
+    def follow(self, velocity: bool = False) -> None:
+        """While carried: the object at its pose in the hand (after a control period's physics steps, or after each
+        of them for a probe that looks); ``velocity``: moving with the wrist as well (when it rejoins the dynamics)."""
+        # (computeForwardKinematics=1: PyBullet's stored frame of a link without a collision shape is what the last
+        # forward-kinematics pass left, not what the last physics step did. Such a pass between two physics steps
+        # moves the solver's next result by ~1e-7 rad, so a probe that follows at every step changes the episode by
+        # that much, as the realism probe's own getLinkState calls do.)
+        cid = self.client._client
+        eef = pb.getLinkState(self.psm.body, EEF_LINK, int(velocity), 1, cid)
+        self._eef = (eef[4], eef[5])
+        pos, quat = pb.multiplyTransforms(eef[4], eef[5], *self._carry_at)
+        pb.resetBasePositionAndOrientation(self.object_id, pos, quat, cid)
+        if velocity:
+            v, w = eef[6], eef[7]
+            rx, ry, rz = pos[0] - eef[4][0], pos[1] - eef[4][1], pos[2] - eef[4][2]
+            pb.resetBaseVelocity(self.object_id, (v[0] + w[1] * rz - w[2] * ry, v[1] + w[2] * rx - w[0] * rz,
+                                                  v[2] + w[0] * ry - w[1] * rx), w, cid)
+
+    def _set_carry_collisions(self, enabled: bool) -> None:
+        # Between the steps of a period the carried object stays where ``follow`` last put it, behind the hand; the
+        # hand's own links (the blades do not collide with it anyway) must not meet it there.
+        for link in _HAND_LINKS:
+            self.client.setCollisionFilterPair(self.psm.body, self.object_id, link, self.object_link, int(enabled))
+
+    def _end_carry(self) -> None:
+        """The object back in the dynamics, where the hand has it and moving with it; the wrist link as built."""
+        c = self.client
+        self._set_carry_collisions(True)
+        mass, inertia, link_mass, link_inertia = self._carry_load
+        c.changeDynamics(self.object_id, -1, mass=mass, localInertiaDiagonal=list(inertia))
+        self.follow(velocity=True)
+        c.changeDynamics(self.psm.body, EEF_LINK, mass=link_mass, localInertiaDiagonal=list(link_inertia))
+        self.carried = False
+        self._carry_at = self._carry_load = None
+
+    def restore(self) -> None:
+        """End a carry: the weld back, with the frame and force it was made with."""
+        if not self.carried:
+            return
+        self._end_carry()
+        c = self.client
+        rel_pos, rel_quat = self._frame
+        self.constraint = c.createConstraint(self.psm.body, EEF_LINK, self.object_id, self.object_link, c.JOINT_FIXED,
+                                             [0, 0, 0], rel_pos, [0, 0, 0], parentFrameOrientation=rel_quat)
+        c.changeConstraint(self.constraint, maxForce=physics.GRASP_MAX_FORCE)
+
     def _held_by_peer(self) -> bool:
         return any(p.holds(self.object_id, self.object_link) for p in self.peers)
 
     def _grip(self) -> None:
         """The blades have just closed on the object: hold it by a constraint, or by the blades alone while a peer's
         constraint already drives it (see 5. Hand-over)."""
+        self.hold_serial += 1
         if self._held_by_peer():
             self.passive = True
             self._held_at = self._relative_position()
@@ -159,11 +285,13 @@ class Grasp:
     def _take(self) -> None:
         """A passive hold becomes this hand's constraint, at the pose the object now has between its blades."""
         self.passive = False
+        self.hold_serial += 1
         self._attach(physics.GRASP_MAX_FORCE if self.lift_condition() else physics.GRASP_FRICTION_FORCE)
 
     def attach(self) -> None:
         """Hold the object at its current pose relative to the wrist (a task that starts with it in hand)."""
         if self.constraint is None:
+            self.hold_serial += 1
             self._attach(physics.GRASP_MAX_FORCE)
 
     def _relative_position(self) -> np.ndarray:
@@ -190,6 +318,7 @@ class Grasp:
                                              parentFrameOrientation=rel_quat)
         c.changeConstraint(self.constraint, maxForce=max_force)
         self.welded = max_force >= physics.GRASP_MAX_FORCE
+        self._frame = (rel_pos, rel_quat)
         self._held_at = np.asarray(rel_pos)
         self.psm.hold_blades()
         self._set_jaw_collisions(False)
@@ -204,7 +333,10 @@ class Grasp:
             self._held_at = None
             self.psm.stop_jaw_at(None)
         if self.constraint is not None:
-            self.client.removeConstraint(self.constraint)
+            if self.carried:   # (its constraint is out of the solver already: nothing to remove)
+                self._end_carry()
+            else:
+                self.client.removeConstraint(self.constraint)
             self.constraint = None
             self.welded = False
             self._held_at = None

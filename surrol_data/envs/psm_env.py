@@ -103,6 +103,9 @@ class PsmEnv(gym.Env):
     ACTION_DIM = 5            # per arm 5; the bimanual base sets 10
     OBSERVATION_DIM = 0       # 0: 19 with object terms, else 7; the bimanual base sets 35
     GOAL_DIM = 3              # a point (the goal marker shows its first three terms)
+    # Carry a welded object kinematically while nothing can come near it (grasp.py, 6. Carry; adaptive_steps
+    # .CARRY_CLEAR_HELD_OBJECTS): set by the tasks whose carry has been checked against the weld.
+    KINEMATIC_CARRY = False
     # Instrumentation: when set (on an instance), called as ``substep_hook(env)`` after every physics substep
     # (benchmarks/physics_realism.py probes contacts there). Unset, it costs one attribute test per substep.
     substep_hook = None
@@ -146,7 +149,7 @@ class PsmEnv(gym.Env):
         self.build_scene()
         self.goal_marker = objects.make_goal_marker(self.client, visual=self.visual)
         self.grasp = Grasp(self.client, self.psm, self.object_id, self.grasp_lift_condition)
-        self._substeps = SubstepPlanner(self.client, (self.grasp,), self.dynamic_bodies)
+        self._substeps = SubstepPlanner(self.client, (self.grasp,), self.dynamic_bodies, carry=self.KINEMATIC_CARRY)
 
     # ------------------------------------------------------------------ to be declared by tasks
     def build_scene(self) -> None:
@@ -281,6 +284,7 @@ class PsmEnv(gym.Env):
         planner = self._substeps
         arms = [grasp.psm for grasp in planner.grasps]
         planner.plan_tools(physics.TIME_STEP, watched)
+        carried = planner.carried
         for psm in arms:
             psm.plan_gravity_compensation()
         k_now = 1
@@ -295,11 +299,18 @@ class PsmEnv(gym.Env):
             for _ in range(k):
                 for psm in arms:
                     psm.compensate_gravity()
+                for grasp in carried:
+                    grasp.load_wrist()
                 step_simulation(cid)
+                if carried and hook is not None:
+                    for grasp in carried:   # (a probe sees the carried object where it is at every step)
+                        grasp.follow()
                 if watched:
                     watched = [g for g in watched if not g.grip_if_between()]
                 if hook is not None:
                     hook(self)
+        for grasp in carried:
+            grasp.follow()
         if k_now != 1:
             self._set_time_step(physics.TIME_STEP)
 

@@ -34,8 +34,9 @@ import math
 
 from surrol_data.envs.physics import pb
 
-# The joints (0–7) that move each colliding tool link, from the RCM out: wrist pitch link 4, jaws 6 and 7.
-_CHAINS = {4: (0, 1, 2, 3, 4), 6: (0, 1, 2, 3, 4, 5, 6), 7: (0, 1, 2, 3, 4, 5, 7)}
+# The joints (0–7) that move each colliding tool link, from the RCM out: wrist pitch link 4, jaws 6 and 7; and the
+# wrist-yaw link 5, which carries nothing that collides but what a grasp holds (adaptive_steps: a carried object).
+_CHAINS = {4: (0, 1, 2, 3, 4), 5: (0, 1, 2, 3, 4, 5), 6: (0, 1, 2, 3, 4, 5, 6), 7: (0, 1, 2, 3, 4, 5, 7)}
 _PRISMATIC = 2                      # the insertion; the others are revolute
 _JOINTS = tuple(range(8))
 # Slack on each joint's range of motion in a period: a fraction of the range plus a floor (rad; insertion in
@@ -134,6 +135,19 @@ class ToolSweep:
                 across = max(across, x * x + y * y + z * z - along * along)
             return gap <= approach + fixed + tilt * math.sqrt(across)
         return True
+
+    def turn_reach(self, joints, aabb) -> float:
+        """The most any point of a box (``aabb``, scaled world) fixed to the links past ``joints`` (revolute) may
+        move relative to the link before them within the period: each joint's move times the box's farthest
+        corner's distance from the joint's origin (an arc no longer than the angle times the radius)."""
+        (x0, y0, z0), (x1, y1, z1) = aabb
+        travel = 0.0
+        for j in joints:
+            ox, oy, oz = self._origins[j]
+            radius = math.sqrt(max(abs(x0 - ox), abs(x1 - ox)) ** 2 + max(abs(y0 - oy), abs(y1 - oy)) ** 2
+                               + max(abs(z0 - oz), abs(z1 - oz)) ** 2)
+            travel += self._moves[j] * radius
+        return travel
 
 
 def _z_axis(q):

@@ -15,6 +15,7 @@ OPEN, CLOSE = 0.5, -0.5
 class GauzeRetrieve(PsmEnv):
     TASK = "Retrieve the gauze: grasp it and lift it to the green target."
     FIXED_YAW = True                 # the reference zeroes the yaw action: jaws always open along world x
+    KINEMATIC_CARRY = True           # the lifted gauze, far from the tray, is carried without its weld (grasp.py)
     ORACLE_GAIN = 0.6
     GAUZE_JITTER_M = 0.01            # gauze xy = workspace centre ± U(1 cm)
     GOAL_XY_SIGMA_M = 0.02           # goal xy = workspace centre + N(0, 2 cm) per axis (unclipped, as the reference)
