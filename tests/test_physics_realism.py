@@ -298,6 +298,15 @@ def test_a_block_turned_on_its_peg_is_not_flung_off_the_board():
     assert r.overlap["object-static"] <= 1e-3, r.overlap
 
 
+def test_a_glyph_block_released_over_its_groove_lands_without_sinking_in():
+    """MatchBoard's oracle drops the block ~4 mm into its groove; with the objects' usual travel limit per physics step
+    the flat block of pixel boxes tipped on landing and sank an edge 0.91–1.03 mm into the board (seeds 6 and 24):
+    MatchBoard refines to physics.FLAT_BLOCK_TRAVEL_PER_STEP_M."""
+    r = physics_realism.run_policy("MatchBoard", "oracle", episodes=2, seeds=(6, 24))
+    assert r.successes == 2
+    assert r.overlap["object-static"] <= 0.7e-3, r.overlap
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("policy, task", [(policy, task) for policy in ("random", "bang-bang")
                                           for task in physics_realism.TASKS])

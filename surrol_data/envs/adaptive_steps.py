@@ -7,7 +7,7 @@ Once per control period the planner bounds how fast the tools' blades may move (
 are known) and, if one could come near another body meanwhile, how finely to step; before each coarse step
 it checks the objects' speeds (a dropped object speeds up within the period). A coarse step is split into as
 many fine steps as keep that travel under ``physics.MAX_TRAVEL_PER_STEP_M`` (tools) or
-``physics.MAX_OBJECT_TRAVEL_PER_STEP_M`` (objects), at most ``physics.MAX_REFINEMENT``. The tests cost a few
+``physics.MAX_OBJECT_TRAVEL_PER_STEP_M`` (objects; a scene may set its own), at most ``physics.MAX_REFINEMENT``. The tests cost a few
 PyBullet queries per step; the fine steps cost only where they are needed.
 
 A closing jaw whose blades are near the object it may grip is refined too, so that between two of the grasp's
@@ -54,11 +54,14 @@ _SPIN_NEGLIGIBLE_RAD_S = 0.01
 
 
 class SubstepPlanner:
-    def __init__(self, client, grasps, dynamic_bodies, carry: bool = False):
+    def __init__(self, client, grasps, dynamic_bodies, carry: bool = False,
+                 object_travel_m: float = physics.MAX_OBJECT_TRAVEL_PER_STEP_M):
         """``grasps``: each arm's grasp (its ``psm`` and what it holds); ``dynamic_bodies``: a callable returning
         the scene's movable object ids; ``carry``: a single arm's welded object may be carried kinematically while
-        nothing can come near it (``CARRY_CLEAR_HELD_OBJECTS``)."""
+        nothing can come near it (``CARRY_CLEAR_HELD_OBJECTS``); ``object_travel_m``: the most a fast object near
+        another body may travel per physics step (real metres; the scene's objects' limit, see physics.py)."""
         self.carry = carry and len(grasps) == 1
+        self.object_travel_m = object_travel_m
         self.client = client
         self.grasps = grasps
         self.dynamic_bodies = dynamic_bodies
@@ -163,7 +166,7 @@ class SubstepPlanner:
         k = self._tool_k
         travel = self._object_travel(dt) if self._bodies else 0.0
         if travel:
-            k = max(k, self._k(travel, physics.MAX_OBJECT_TRAVEL_PER_STEP_M))
+            k = max(k, self._k(travel, self.object_travel_m))
         if self._closing:
             travel = self._jaw_travel(dt)
             if travel:
@@ -179,7 +182,7 @@ class SubstepPlanner:
     def _object_travel(self, dt: float) -> float:
         """Travel of the fastest object that could hit something other than a tool (tool hits are the tools')."""
         worst = 0.0
-        limit = physics.MAX_OBJECT_TRAVEL_PER_STEP_M * SCALING / dt   # scaled speed below which nothing matters
+        limit = self.object_travel_m * SCALING / dt   # scaled speed below which nothing matters
         fall = _GRAVITY * dt
         cid = self._cid
         for body in self._bodies:
@@ -236,7 +239,7 @@ class SubstepPlanner:
             travel = bound * dt
             if SKIP_SLOW_HELD_OBJECTS and grasp.attached and grasp.object_link < 0:
                 held = psm.held_speed_bound(dt, grasp.held_offset_m(), states, bound)
-                if held * dt <= physics.MAX_OBJECT_TRAVEL_PER_STEP_M:
+                if held * dt <= self.object_travel_m:
                     self._slow_held.add(grasp.object_id)
             if travel <= max(worst, physics.MAX_TRAVEL_PER_STEP_M):
                 continue

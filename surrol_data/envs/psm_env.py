@@ -106,6 +106,8 @@ class PsmEnv(gym.Env):
     # Carry a welded object kinematically while nothing can come near it (grasp.py, 6. Carry; adaptive_steps
     # .CARRY_CLEAR_HELD_OBJECTS): set by the tasks whose carry has been checked against the weld.
     KINEMATIC_CARRY = False
+    # The most a fast object near another body may travel per physics step (adaptive_steps.py), real metres.
+    OBJECT_TRAVEL_PER_STEP_M = physics.MAX_OBJECT_TRAVEL_PER_STEP_M
     # Instrumentation: when set (on an instance), called as ``substep_hook(env)`` after every physics substep
     # (benchmarks/physics_realism.py probes contacts there). Unset, it costs one attribute test per substep.
     substep_hook = None
@@ -149,7 +151,8 @@ class PsmEnv(gym.Env):
         self.build_scene()
         self.goal_marker = objects.make_goal_marker(self.client, visual=self.visual)
         self.grasp = Grasp(self.client, self.psm, self.object_id, self.grasp_lift_condition)
-        self._substeps = SubstepPlanner(self.client, (self.grasp,), self.dynamic_bodies, carry=self.KINEMATIC_CARRY)
+        self._substeps = SubstepPlanner(self.client, (self.grasp,), self.dynamic_bodies, carry=self.KINEMATIC_CARRY,
+                                        object_travel_m=self.OBJECT_TRAVEL_PER_STEP_M)
 
     # ------------------------------------------------------------------ to be declared by tasks
     def build_scene(self) -> None:

@@ -159,6 +159,7 @@ class MatchBoard(GlyphBlockScene, PsmEnv):
     RELEASE_HEIGHT_M = 0.0005      # block bottom above the board's top when the jaw opens over the groove
     XY_TOLERANCE_M = 0.0025
     HEIGHT_TOLERANCE_M = 0.0008
+    OBJECT_TRAVEL_PER_STEP_M = physics.FLAT_BLOCK_TRAVEL_PER_STEP_M   # a landing block tipped in (see physics.py)
 
     def build_scene(self) -> None:
         self.board = mb.make_match_board(self.client, self.BOARD_ORIGIN, self.GLYPHS, visual=self.visual)
