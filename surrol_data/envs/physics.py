@@ -57,7 +57,7 @@ TIME_STEP = CONTROL_PERIOD_S / SUBSTEPS
 # also lets a resting object sit on its support (a needle on the pad rested 0.36 mm deep at ERP 0.2, 0.03 mm at
 # 0.8); at ERP 1.0 (100 iterations) a poked needle was flung off the pad spinning at 18 rad/s.
 # Cost, oracle episodes of the same run (5 × 3, medians): NeedlePick −3 %, PegTransfer −2 %, GauzeRetrieve −12 %,
-# BiPegTransfer −10 % of the steps/s at (20, 0.2); ERP alone costs nothing measurable. Still open at (50, 0.8), 30
+# BiPegTransfer −10 % of the steps/s at (20, 0.2); ERP alone costs nothing measurable. Left at (50, 0.8), 30
 # episodes: under bang-bang input a block jammed on a peg sank 2–3 mm into it and was flung off the board (PegTransfer
 # seeds 2 and 19, 1 of 30 BiPegTransfer episodes); 100 iterations kept those two seeds clean but jammed another
 # (PegTransfer bang-bang, 30 episodes: 3.18 mm, one block flung off). That was friction, not the iterations: see
