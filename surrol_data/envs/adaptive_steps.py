@@ -105,7 +105,7 @@ class SubstepPlanner:
                 continue
             psm = grasp.psm
             states, bound = self._tool_motion(psm, dt)
-            held = psm.held_speed_bound(dt, grasp.held_offset_m(), states, bound)
+            held = self._held_speed(grasp, dt, states, bound)
             reach = (held * dt * physics.SUBSTEPS + CARRY_CLEARANCE_M) * SCALING
             if self._clear(grasp, states, dt * physics.SUBSTEPS, reach):
                 grasp.carry()
@@ -152,6 +152,15 @@ class SubstepPlanner:
             states = psm.moving_joint_states()
             motion = self._motion[key] = (states, psm.blade_speed_bound(dt, states))
         return motion
+
+    def _held_speed(self, grasp, dt: float, states, bound: float) -> float:
+        """The bound on the held object's speed this period (Psm.held_speed_bound), asked for once: the carry and the
+        slow-held test both need it, and neither the joints nor where the object sits in the hand change between."""
+        key = (grasp, "held")
+        held = self._motion.get(key)
+        if held is None:
+            held = self._motion[key] = grasp.psm.held_speed_bound(dt, grasp.held_offset_m(), states, bound)
+        return held
 
     def _sweep(self, psm, states, period: float) -> ToolSweep:
         """The tool's sweep over this period, built once (see _tool_motion)."""
@@ -238,7 +247,7 @@ class SubstepPlanner:
             states, bound = self._tool_motion(psm, dt)
             travel = bound * dt
             if SKIP_SLOW_HELD_OBJECTS and grasp.attached and grasp.object_link < 0:
-                held = psm.held_speed_bound(dt, grasp.held_offset_m(), states, bound)
+                held = self._held_speed(grasp, dt, states, bound)
                 if held * dt <= self.object_travel_m:
                     self._slow_held.add(grasp.object_id)
             if travel <= max(worst, physics.MAX_TRAVEL_PER_STEP_M):

@@ -182,10 +182,7 @@ class Grasp:
         if self.carried or self.constraint is None or not self.welded or self.passive or self.object_link >= 0:
             return
         c, cid, body, obj = self.client, self.client._client, self.psm.body, self.object_id
-        eef = pb.getLinkState(body, EEF_LINK, 0, 1, cid)
-        self._eef = (eef[4], eef[5])
-        inv_pos, inv_quat = pb.invertTransform(eef[4], eef[5])
-        self._carry_at = pb.multiplyTransforms(inv_pos, inv_quat, *pb.getBasePositionAndOrientation(obj, cid))
+        self._eef, self._carry_at = self._wrist_and_relative_pose()
         pb.removeConstraint(self.constraint, physicsClientId=cid)
         self.carried = True
         info = pb.getDynamicsInfo(obj, -1, physicsClientId=cid)
@@ -262,11 +259,7 @@ class Grasp:
         if not self.carried:
             return
         self._end_carry()
-        c = self.client
-        rel_pos, rel_quat = self._frame
-        self.constraint = c.createConstraint(self.psm.body, EEF_LINK, self.object_id, self.object_link, c.JOINT_FIXED,
-                                             [0, 0, 0], rel_pos, [0, 0, 0], parentFrameOrientation=rel_quat)
-        c.changeConstraint(self.constraint, maxForce=physics.GRASP_MAX_FORCE)
+        self.constraint = self._fix(self._frame, physics.GRASP_MAX_FORCE)
 
     def _held_by_peer(self) -> bool:
         return any(p.holds(self.object_id, self.object_link) for p in self.peers)
@@ -298,6 +291,11 @@ class Grasp:
         return np.asarray(self._relative_pose()[0])
 
     def _relative_pose(self):
+        """The held object's (position, quaternion) in the wrist-yaw link's frame."""
+        return self._wrist_and_relative_pose()[1]
+
+    def _wrist_and_relative_pose(self):
+        """(the wrist-yaw link's world frame, the held object's pose in it), each a (position, quaternion)."""
         # (Asked for every step while holding: PyBullet called positionally, its keyword parsing costing more than
         # the calls; getLinkState's arguments are computeLinkVelocity=0, computeForwardKinematics=1.)
         cid = self.client._client
@@ -307,16 +305,21 @@ class Grasp:
         else:
             obj_pos, obj_quat = pb.getLinkState(self.object_id, self.object_link, 0, 1, cid)[:2]
         inv_pos, inv_quat = pb.invertTransform(eef[4], eef[5])
-        return pb.multiplyTransforms(inv_pos, inv_quat, obj_pos, obj_quat)
+        return (eef[4], eef[5]), pb.multiplyTransforms(inv_pos, inv_quat, obj_pos, obj_quat)
+
+    def _fix(self, frame, max_force: float) -> int:
+        """A constraint holding the object at ``frame`` (position, quaternion) in the wrist-yaw link's frame."""
+        c = self.client
+        rel_pos, rel_quat = frame
+        constraint = c.createConstraint(self.psm.body, EEF_LINK, self.object_id, self.object_link, c.JOINT_FIXED,
+                                        [0, 0, 0], rel_pos, [0, 0, 0], parentFrameOrientation=rel_quat)
+        c.changeConstraint(constraint, maxForce=max_force)
+        return constraint
 
     def _attach(self, max_force: float) -> None:
-        c = self.client
         # Object pose in the wrist frame, so the constraint keeps the grasp exactly as found.
         rel_pos, rel_quat = self._relative_pose()
-        self.constraint = c.createConstraint(self.psm.body, EEF_LINK, self.object_id, self.object_link, c.JOINT_FIXED,
-                                             [0, 0, 0], rel_pos, [0, 0, 0],
-                                             parentFrameOrientation=rel_quat)
-        c.changeConstraint(self.constraint, maxForce=max_force)
+        self.constraint = self._fix((rel_pos, rel_quat), max_force)
         self.welded = max_force >= physics.GRASP_MAX_FORCE
         self._frame = (rel_pos, rel_quat)
         self._held_at = np.asarray(rel_pos)
