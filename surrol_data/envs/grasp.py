@@ -202,7 +202,7 @@ class Grasp:
         # solver; ``follow`` puts it where the hand has it.
         c.changeDynamics(obj, -1, mass=0.0)
         pb.resetBaseVelocity(obj, _ORIGIN, _ORIGIN, cid)
-        self._set_carry_collisions(False)
+        self._set_collisions(_HAND_LINKS, False)
 
     def plan_load(self) -> None:
         """Once per control period while carried: the moment that puts the object's weight, which acts on the mass
@@ -237,16 +237,10 @@ class Grasp:
             pb.resetBaseVelocity(self.object_id, (v[0] + w[1] * rz - w[2] * ry, v[1] + w[2] * rx - w[0] * rz,
                                                   v[2] + w[0] * ry - w[1] * rx), w, cid)
 
-    def _set_carry_collisions(self, enabled: bool) -> None:
-        # Between the steps of a period the carried object stays where ``follow`` last put it, behind the hand; the
-        # hand's own links (the blades do not collide with it anyway) must not meet it there.
-        for link in _HAND_LINKS:
-            self.client.setCollisionFilterPair(self.psm.body, self.object_id, link, self.object_link, int(enabled))
-
     def _end_carry(self) -> None:
         """The object back in the dynamics, where the hand has it and moving with it; the wrist link as built."""
         c = self.client
-        self._set_carry_collisions(True)
+        self._set_collisions(_HAND_LINKS, True)
         mass, inertia, link_mass, link_inertia = self._carry_load
         c.changeDynamics(self.object_id, -1, mass=mass, localInertiaDiagonal=list(inertia))
         self.follow(velocity=True)
@@ -324,11 +318,14 @@ class Grasp:
         self._frame = (rel_pos, rel_quat)
         self._held_at = np.asarray(rel_pos)
         self.psm.hold_blades()
-        self._set_jaw_collisions(False)
+        self._set_collisions(JAW_JOINTS, False)
 
-    def _set_jaw_collisions(self, enabled: bool) -> None:
-        for j in JAW_JOINTS:
-            self.client.setCollisionFilterPair(self.psm.body, self.object_id, j, self.object_link, int(enabled))
+    def _set_collisions(self, links, enabled: bool) -> None:
+        """Whether the tool's ``links`` collide with the object: not the blades of the hand whose constraint holds
+        it (their contacts would only fight the weld), nor, while it is carried, the hand's shaft and wrist (between
+        the steps of a period the object stays where ``follow`` last put it, behind the hand)."""
+        for link in links:
+            self.client.setCollisionFilterPair(self.psm.body, self.object_id, link, self.object_link, int(enabled))
 
     def release(self) -> None:
         if self.passive:
@@ -344,7 +341,7 @@ class Grasp:
             self.welded = False
             self._held_at = None
             self.psm.stop_jaw_at(None)
-            self._set_jaw_collisions(True)
+            self._set_collisions(JAW_JOINTS, True)
             # A peer squeezing the same object takes it now, before the next physics step (nothing holds it else).
             for peer in self.peers:
                 if peer.passive and peer.object_id == self.object_id and peer.object_link == self.object_link:
