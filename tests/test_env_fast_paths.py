@@ -74,20 +74,27 @@ def _ik_reference(tip_pose):
     return q, bool(np.all(q >= kin.PSM_LOWER - 1e-9) and np.all(q <= kin.PSM_UPPER + 1e-9))
 
 
-def test_psm_fk_and_ik_equal_the_textbook_formulas_bit_for_bit():
+def test_psm_fk_ik_and_euler_angles_equal_the_textbook_formulas_bit_for_bit():
     rng = np.random.default_rng(1)
     lower, upper = kin.PSM_LOWER.copy(), kin.PSM_UPPER.copy()
     lower[2], upper[2] = 0.05, 0.24
     outside = 0
-    for _ in range(300):
+    for i in range(600):
         q = rng.uniform(lower - 0.2, upper + 0.2)
         pose = kin.psm_fk(q)
         assert np.array_equal(pose, _fk_reference(q))
+        if i % 2:   # the envs' commands: the tool pointing down, whose rotation has exact zeros (signed, in the bits)
+            pose[:3, :3] = kin.tool_down_rotation(rng.uniform(-np.pi, np.pi) if i % 4 == 1 else 0.0)
         result = kin.psm_ik(pose)
         q_ref, ok_ref = _ik_reference(pose)
-        assert np.array_equal(result.q, q_ref) and result.within_limits == ok_ref
+        assert result.q.tobytes() == q_ref.tobytes() and result.within_limits == ok_ref
         outside += not ok_ref
-    assert 0 < outside < 300      # both sides of the limit test were exercised
+        rotation = pose[:3, :3]
+        euler_ref = np.array([np.arctan2(rotation[2, 1], rotation[2, 2]),
+                              np.arcsin(np.clip(-rotation[2, 0], -1.0, 1.0)),
+                              np.arctan2(rotation[1, 0], rotation[0, 0])])
+        assert kin.euler_xyz(rotation).tobytes() == euler_ref.tobytes()
+    assert 0 < outside < 600      # both sides of the limit test were exercised
 
 
 def test_client_binds_each_function_once_and_forgets_on_disconnect():

@@ -59,6 +59,11 @@ def test_a_carried_gauze_is_held_and_goes_back_under_its_weld_at_the_same_pose()
     for _ in range(10):
         obs, _, _, _, info = env.step(u.oracle_action(obs))
     assert info["grasped"] and info["drops"] == 0 and g.slip_m() < 1e-4
+    # While carried, the slip is the one the carry began with (not asked of PyBullet again): what the pose in the hand
+    # says, to within PyBullet's transforms (single precision: ~1e-7 m).
+    assert g.carried
+    measured = float(np.linalg.norm(np.asarray(g._relative_pose()[0]) - g._held_at)) / SCALING
+    assert g.slip_m() == pytest.approx(measured, abs=1e-6)
     env.close()
 
 

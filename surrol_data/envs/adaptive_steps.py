@@ -125,21 +125,23 @@ class SubstepPlanner:
         body, psm = grasp.object_id, grasp.psm
         candidates, boxes = self._candidates(body, (-1,), reach, ignore={psm.body})
         clearance = CARRY_CLEARANCE_M * SCALING
-        sweep = self._sweep(psm, states, period)
+        # (The sweep is built only when a point within reach asks for it: mostly none does.)
         # The hand's own colliding links (the shaft on link 3, the wrist on link 4; the blades do not collide with
         # what they hold) move relative to the object only by the wrist joints between them and the wrist-yaw link.
         for p in pb.getClosestPoints(body, psm.body, reach, physicsClientId=self._cid):
             link = p[4]
             if link in JAW_JOINTS:
                 continue
-            if link not in _WRIST_LINKS or p[8] - clearance <= sweep.turn_reach(range(link + 1, EEF_LINK + 1),
-                                                                                 boxes[0]):
+            if link not in _WRIST_LINKS:
+                return False
+            turn = self._sweep(psm, states, period).turn_reach(range(link + 1, EEF_LINK + 1), boxes[0])
+            if p[8] - clearance <= turn:
                 return False
         for other in candidates:
             for p in pb.getClosestPoints(body, other, reach, physicsClientId=self._cid):
                 # (p[7]: the normal from the other body to the object; ``may_close`` takes the object as a part of
                 # the wrist-yaw link, its bounding box for the link's.)
-                if sweep.may_close(EEF_LINK, p[7], p[8] - clearance, boxes[0]):
+                if self._sweep(psm, states, period).may_close(EEF_LINK, p[7], p[8] - clearance, boxes[0]):
                     return False
         return True
 

@@ -105,6 +105,7 @@ class Grasp:
         self._carry_load = None          # (object's mass, inertia, wrist link's mass, inertia) while carried
         self._torque = _ORIGIN           # the object's weight's moment about the wrist link's origin, while carried
         self._eef = None                 # the wrist link's frame when last asked for, while carried
+        self._carry_slip = 0.0           # the slip (m) when the carry began: it stays so while carried
 
     @property
     def attached(self) -> bool:
@@ -149,6 +150,9 @@ class Grasp:
         """How far (real metres) the held object has moved in the hand since the weld formed."""
         if self._held_at is None:
             return 0.0
+        if self.carried:
+            # Where ``follow`` keeps it: at its pose in the hand when the carry began (see 6. Carry).
+            return self._carry_slip
         return float(vector_norm(self._relative_position() - self._held_at)) / SCALING
 
     def grip_if_between(self) -> bool:
@@ -183,6 +187,7 @@ class Grasp:
             return
         c, cid, body, obj = self.client, self.client._client, self.psm.body, self.object_id
         self._eef, self._carry_at = self._wrist_and_relative_pose()
+        self._carry_slip = float(vector_norm(np.asarray(self._carry_at[0]) - self._held_at)) / SCALING
         pb.removeConstraint(self.constraint, physicsClientId=cid)
         self.carried = True
         info = pb.getDynamicsInfo(obj, -1, physicsClientId=cid)

@@ -10,7 +10,7 @@ Joint order: outer yaw, outer pitch, insertion (prismatic, m), tool roll, wrist 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -115,8 +115,7 @@ _PSM_LOWER_TOLERANT = (PSM_LOWER - 1e-9).tolist()
 _PSM_UPPER_TOLERANT = (PSM_UPPER + 1e-9).tolist()
 
 
-@dataclass(frozen=True)
-class IKResult:
+class IKResult(NamedTuple):
     q: np.ndarray
     within_limits: bool
 
@@ -130,30 +129,35 @@ def psm_ik(tip_pose: np.ndarray) -> IKResult:
     Insertion is |p5| plus the shaft-end offset; the outer yaw/pitch follow from the shaft direction and
     the wrist joints from R3ᵀ·R6 (the DH structure makes them an Euler-like extraction).
     """
-    # (Called every step: scalar clamps and norms as sqrt(x·x), which is what np.clip and np.linalg.norm compute
-    # here, without their per-call overhead.)
+    # (Called every step. The matrix products stay numpy's (its BLAS kernel fuses multiply-adds, which plain
+    # floats cannot repeat); the 3-vector and scalar steps are plain floats: the same operations in the same
+    # order as numpy's (its dot products of 3-vectors sum left to right; math's sqrt, asin and atan2 are the C
+    # library's, as numpy's are here), without numpy's per-call overhead. tests/test_env_fast_paths.py checks the
+    # bits against the numpy form.)
     r6 = tip_pose[:3, :3].dot(_TIP_ROTATION_T)
-    p6 = tip_pose[:3, 3] - r6.dot(_TIP_OFFSET_POSITION)
-    z6 = r6[:, 2]
-    radial = p6 - np.dot(p6, z6) * z6
-    radial_norm = np.sqrt(radial.dot(radial))
+    px, py, pz = (tip_pose[:3, 3] - r6.dot(_TIP_OFFSET_POSITION)).tolist()
+    zx, zy, zz = r6[:, 2].tolist()
+    d = px * zx + py * zy + pz * zz
+    rx, ry, rz = px - d * zx, py - d * zy, pz - d * zz
+    radial_norm = math.sqrt(rx * rx + ry * ry + rz * rz)
     if radial_norm < 1e-9:
         raise ValueError("tip pose is singular for the PSM: the wrist-yaw axis passes through the RCM")
-    p5 = p6 - WRIST_LENGTH * radial / radial_norm
-    depth = np.sqrt(p5.dot(p5))
-    s = p5 / depth
+    px -= WRIST_LENGTH * rx / radial_norm
+    py -= WRIST_LENGTH * ry / radial_norm
+    pz -= WRIST_LENGTH * rz / radial_norm
+    depth = math.sqrt(px * px + py * py + pz * pz)
+    sx, sy, sz = px / depth, py / depth, pz / depth
     q3 = depth + SHAFT_END_OFFSET
-    q2 = np.arcsin(min(max(-s[1], -1.0), 1.0))
-    q1 = np.arctan2(s[0], -s[2])
+    q2 = math.asin(min(max(-sy, -1.0), 1.0))
+    q1 = math.atan2(sx, -sz)
     r3 = _psm_chain((q1, q2, q3), 3)[2][:3, :3]
-    m = r3.T.dot(r6)
-    q5 = np.arcsin(min(max(-m[2, 2], -1.0), 1.0))
-    q4 = np.arctan2(m[1, 2], m[0, 2])
-    q6 = np.arctan2(m[2, 0], m[2, 1])
-    q = np.array([q1, q2, q3, q4, q5, q6])
-    # (The same comparisons as numpy's on the array; its reductions cost more than the whole test.)
-    ok = all(lo <= v <= hi for v, lo, hi in zip(q.tolist(), _PSM_LOWER_TOLERANT, _PSM_UPPER_TOLERANT))
-    return IKResult(q=q, within_limits=ok)
+    m = r3.T.dot(r6).tolist()
+    q5 = math.asin(min(max(-m[2][2], -1.0), 1.0))
+    q4 = math.atan2(m[1][2], m[0][2])
+    q6 = math.atan2(m[2][0], m[2][1])
+    values = (q1, q2, q3, q4, q5, q6)
+    ok = all(lo <= v <= hi for v, lo, hi in zip(values, _PSM_LOWER_TOLERANT, _PSM_UPPER_TOLERANT))
+    return IKResult(np.array(values), ok)
 
 
 def pose_from(position, rotation) -> np.ndarray:
@@ -165,9 +169,10 @@ def pose_from(position, rotation) -> np.ndarray:
 
 def euler_xyz(rotation: np.ndarray) -> np.ndarray:
     """Extrinsic x-y-z Euler angles (roll, pitch, yaw) in rad of a rotation matrix: R = Rz(yaw) Ry(pitch) Rx(roll)."""
-    r = rotation
-    return np.array([np.arctan2(r[2, 1], r[2, 2]), np.arcsin(min(max(-r[2, 0], -1.0), 1.0)),
-                     np.arctan2(r[1, 0], r[0, 0])])
+    # (math's atan2 and asin on plain floats: numpy's values, without its per-call overhead; see psm_ik.)
+    r = rotation.tolist()
+    return np.array([math.atan2(r[2][1], r[2][2]), math.asin(min(max(-r[2][0], -1.0), 1.0)),
+                     math.atan2(r[1][0], r[0][0])])
 
 
 def rot_z3(a: float) -> np.ndarray:

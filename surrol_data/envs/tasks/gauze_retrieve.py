@@ -63,7 +63,8 @@ class GauzeRetrieve(PsmEnv):
         return pos, pos, euler
 
     def achieved_goal(self) -> np.ndarray:
-        return self.gauze_pose()[0]
+        # (The position alone: gauze_pose's rotation matrix is not needed here.)
+        return np.asarray(self.client.getBasePositionAndOrientation(self.object_id)[0]) / SCALING
 
     def plan_oracle(self):
         gauze = self.gauze_pose()[0]
