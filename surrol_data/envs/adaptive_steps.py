@@ -172,6 +172,16 @@ class SubstepPlanner:
             sweep = self._motion[key] = ToolSweep(psm, states, period)
         return sweep
 
+    def steady_refinement(self, steps: int) -> int | None:
+        """The refinement of each of the period's ``steps`` coarse steps when nothing needs a look before each (no
+        object to watch, no jaw closing on one): the tools' alone, counted for all of them at once; None
+        otherwise (then ask :meth:`refinement` before each)."""
+        if self._bodies or self._closing:
+            return None
+        if self._tool_k > 1:
+            self.refined_steps += steps
+        return self._tool_k
+
     def refinement(self, dt: float) -> int:
         """How many fine steps the next coarse step of ``dt`` seconds needs (1 = none)."""
         k = self._tool_k

@@ -224,5 +224,10 @@ def gauze_rest_height() -> float:
 
 
 def make_goal_marker(client, radius_m: float = 0.003, colour=(0.1, 0.9, 0.1, 0.8), visual: bool = True) -> int:
-    vis = client.createVisualShape(pb.GEOM_SPHERE, radius=radius_m * SCALING, rgbaColor=colour) if visual else -1
+    """The green goal sphere, a body that only shows (no collision shape); -1 in a world that never renders, where
+    it would be nothing but a body PyBullet keeps in its collision world (an empty collider whose bounds it updates
+    and pairs every physics step)."""
+    if not visual:
+        return -1
+    vis = client.createVisualShape(pb.GEOM_SPHERE, radius=radius_m * SCALING, rgbaColor=colour)
     return client.createMultiBody(0.0, -1, vis, [0, 0, 0])

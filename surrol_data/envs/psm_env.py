@@ -224,8 +224,9 @@ class PsmEnv(gym.Env):
         """After the scene has settled: draw the goal, plan the oracle, and return the first (obs, info)."""
         self.goal = np.asarray(self.sample_goal(self.np_random), dtype=np.float64)
         self.object_start_z = float(self.achieved_goal()[2])
-        marker = self.goal_marker_position()
-        self.client.resetBasePositionAndOrientation(self.goal_marker, (marker * SCALING).tolist(), [0, 0, 0, 1])
+        if self.goal_marker >= 0:
+            marker = self.goal_marker_position()
+            self.client.resetBasePositionAndOrientation(self.goal_marker, (marker * SCALING).tolist(), [0, 0, 0, 1])
         self._waypoints = self.plan_oracle()
         self._wp_index = 0
         self._hold = 0
@@ -290,12 +291,13 @@ class PsmEnv(gym.Env):
         carried = planner.carried
         for psm in arms:
             psm.plan_gravity_compensation()
+        steady_k = planner.steady_refinement(steps)
         k_now = 1
         for i in range(steps):
             if i < physics.RAMP_STEPS:   # (a ramp ends at its last step: later calls would do nothing)
                 for psm in arms:
                     psm.ramp_targets(i)
-            k = planner.refinement(physics.TIME_STEP)
+            k = steady_k or planner.refinement(physics.TIME_STEP)
             if k != k_now:
                 k_now = k
                 self._set_time_step(physics.TIME_STEP / k)
