@@ -7,8 +7,8 @@ Once per control period the planner bounds how fast the tools' blades may move (
 are known) and, if one could come near another body meanwhile, how finely to step; before each coarse step
 it checks the objects' speeds (a dropped object speeds up within the period). A coarse step is split into as
 many fine steps as keep that travel under ``physics.MAX_TRAVEL_PER_STEP_M`` (tools) or
-``physics.MAX_OBJECT_TRAVEL_PER_STEP_M`` (objects; a scene may set its own), at most ``physics.MAX_REFINEMENT``. The tests cost a few
-PyBullet queries per step; the fine steps cost only where they are needed.
+``physics.MAX_OBJECT_TRAVEL_PER_STEP_M`` (objects; a scene may set its own), at most ``physics.MAX_REFINEMENT``.
+The tests cost a few PyBullet queries per step; the fine steps cost only where they are needed.
 
 A closing jaw whose blades are near the object it may grip is refined too, so that between two of the grasp's
 checks (one per physics step) a blade cannot pass through more than the touch distance
@@ -23,7 +23,7 @@ import math
 
 from surrol_data.envs import physics
 from surrol_data.envs.physics import pb
-from surrol_data.envs.psm import EEF_LINK, JAW_JOINTS
+from surrol_data.envs.psm import EEF_LINK, HAND_LINKS, JAW_JOINTS
 from surrol_data.envs.tool_sweep import ToolSweep
 from surrol_data.envs.units import SCALING
 
@@ -44,9 +44,6 @@ CARRY_CLEAR_HELD_OBJECTS = True
 # from the next), and a carried gauze driven into the tray at full speed is back on its weld in time to end as deep
 # as one never carried (tests/test_kinematic_carry.py).
 CARRY_CLEARANCE_M = 0.002
-# The tool's colliding links that turn relative to the wrist-yaw link by wrist joints only (the shaft on the roll
-# link, the wrist pitch link).
-_WRIST_LINKS = (3, 4)
 # Tool links whose sweep matters (wrist pitch link, both jaws).
 _TOOL_LINKS = (4, 6, 7)
 # Spin (rad/s) below which an object's far points move no faster than its centre, to within the travel limits.
@@ -132,7 +129,7 @@ class SubstepPlanner:
             link = p[4]
             if link in JAW_JOINTS:
                 continue
-            if link not in _WRIST_LINKS:
+            if link not in HAND_LINKS:   # (they turn relative to the wrist-yaw link by wrist joints only)
                 return False
             turn = self._sweep(psm, states, period).turn_reach(range(link + 1, EEF_LINK + 1), boxes[0])
             if p[8] - clearance <= turn:

@@ -70,7 +70,7 @@ import numpy as np
 from surrol_data.envs import physics
 from surrol_data.envs.numeric import vector_norm
 from surrol_data.envs.physics import pb
-from surrol_data.envs.psm import EEF_LINK, JAW_JOINTS
+from surrol_data.envs.psm import EEF_LINK, HAND_LINKS, JAW_JOINTS
 from surrol_data.envs.units import SCALING
 
 _TOUCH = physics.GRASP_CONTACT_DISTANCE_M * SCALING
@@ -78,7 +78,6 @@ _BLADE_LENGTH = physics.BLADE_LENGTH_M * SCALING
 _ACROSS = np.cos(np.deg2rad(45.0))   # contact normal within 45° of the inner-face normal
 _ORIGIN, _NO_TURN = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)
 _WORLD_FRAME = pb.WORLD_FRAME
-_HAND_LINKS = (3, 4)             # the tool's colliding links besides the blades: the shaft, the wrist
 # Direction from each blade towards the other, in the blade's link frame (blade 6 lies on +x, blade 7 on −x).
 _TOWARDS_OTHER = (-1.0, 1.0)
 
@@ -207,7 +206,7 @@ class Grasp:
         # solver; ``follow`` puts it where the hand has it.
         c.changeDynamics(obj, -1, mass=0.0)
         pb.resetBaseVelocity(obj, _ORIGIN, _ORIGIN, cid)
-        self._set_collisions(_HAND_LINKS, False)
+        self._set_collisions(HAND_LINKS, False)
 
     def plan_load(self) -> None:
         """Once per control period while carried: the moment that puts the object's weight, which acts on the mass
@@ -245,7 +244,7 @@ class Grasp:
     def _end_carry(self) -> None:
         """The object back in the dynamics, where the hand has it and moving with it; the wrist link as built."""
         c = self.client
-        self._set_collisions(_HAND_LINKS, True)
+        self._set_collisions(HAND_LINKS, True)
         mass, inertia, link_mass, link_inertia = self._carry_load
         c.changeDynamics(self.object_id, -1, mass=mass, localInertiaDiagonal=list(inertia))
         self.follow(velocity=True)

@@ -136,9 +136,9 @@ def glyph_boxes(name: str) -> tuple[tuple[int, int, int, int], ...]:
 def _block_boxes(name: str, merged: bool) -> tuple[list, list]:
     """(half extents, centres) of the block's collision boxes (scaled, glyph frame): merged, or one per pixel."""
     if not merged:
+        pixels = glyph_pixels(name)
         half = (np.array([PIXEL / 2, PIXEL / 2, BLOCK_HEIGHT / 2]) * SCALING).tolist()
-        return [half] * len(glyph_pixels(name)), [(np.array([*_pixel_centre(p), 0.0]) * SCALING).tolist()
-                                                  for p in glyph_pixels(name)]
+        return [half] * len(pixels), [(np.array([*_pixel_centre(p), 0.0]) * SCALING).tolist() for p in pixels]
     halves, centres = [], []
     for c0, r0, w, h in glyph_boxes(name):
         lo, hi = _pixel_centre((c0, r0)), _pixel_centre((c0 + w - 1, r0 + h - 1))

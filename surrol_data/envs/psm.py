@@ -23,6 +23,7 @@ from surrol_data.envs.units import SCALING
 
 ARM_JOINTS = (0, 1, 2, 3, 4, 5)
 JAW_JOINTS = (6, 7)
+HAND_LINKS = (3, 4)   # the tool's colliding links besides the blades: the shaft (on the roll link), the wrist
 TIP_LINK = 8
 EEF_LINK = 5
 # Joint value of each jaw = sign × jaw angle / 2: the +x blade opens towards +x (a negative rotation about z).
