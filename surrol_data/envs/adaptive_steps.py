@@ -44,8 +44,12 @@ CARRY_CLEAR_HELD_OBJECTS = True
 # from the next), and a carried gauze driven into the tray at full speed is back on its weld in time to end as deep
 # as one never carried (tests/test_kinematic_carry.py).
 CARRY_CLEARANCE_M = 0.002
+# Move an arm whose object is carried and which touches nothing over the period by its motors' closed-form rule
+# (free_motion.py) instead of PyBullet's steps; False: always PyBullet's.
+FREE_ARM_MOTION = True
 # Tool links whose sweep matters (wrist pitch link, both jaws).
 _TOOL_LINKS = (4, 6, 7)
+_COLLIDING_LINKS = HAND_LINKS + JAW_JOINTS
 # Spin (rad/s) below which an object's far points move no faster than its centre, to within the travel limits.
 _SPIN_NEGLIGIBLE_RAD_S = 0.01
 
@@ -69,8 +73,10 @@ class SubstepPlanner:
         self._slow_held: set[int] = set()
         self._motion: dict = {}    # per period: each tool's joint states, speed bound and sweep (see _tool_motion)
         self.carried: list = []    # grasps whose objects are carried kinematically this period
+        self.free_arm = None       # the grasp whose arm touches nothing while nothing else moves, this period
         self.refined_steps = 0     # coarse steps that were split (for benchmarks)
         self.carried_periods = 0   # control periods with a carried object (for benchmarks)
+        self.free_periods = 0      # control periods moved in closed form (counted by the env, for benchmarks)
 
     def plan_tools(self, dt: float, closing=()) -> None:
         """Once per control period, before its physics steps: the refinement the tools' moves need. Their speed
@@ -89,6 +95,12 @@ class SubstepPlanner:
             bodies = [b for b in bodies if b not in self._slow_held]
         self._bodies = bodies
         self._closing = [g for g in closing if g.object_id >= 0]
+        self.free_arm = None
+        if FREE_ARM_MOTION and self.carry and not self._closing and self._tool_k == 1:
+            grasp = self.grasps[0]   # (a carry has a single arm)
+            # Nothing else moves: the arm carries every object there is.
+            if grasp.carried and not bodies and self._tool_clear(grasp, dt):
+                self.free_arm = grasp
 
     def _plan_carry(self, dt: float) -> None:
         """Carry a welded object for the period if nothing but its hand's blades can come within the period's reach
@@ -141,6 +153,16 @@ class SubstepPlanner:
                 if self._sweep(psm, states, period).may_close(EEF_LINK, p[7], p[8] - clearance, boxes[0]):
                     return False
         return True
+
+    def _tool_clear(self, grasp, dt: float) -> bool:
+        """Can none of the tool's colliding links come within ``CARRY_CLEARANCE_M`` of another body (but the object
+        it carries, which they do not collide with) over the period? Then no contact acts on the arm: PyBullet
+        makes a contact's constraint only of a pair within a step's reach of touching."""
+        psm = grasp.psm
+        states, bound = self._tool_motion(psm, dt)
+        reach = (bound * dt * physics.SUBSTEPS + CARRY_CLEARANCE_M) * SCALING
+        candidates, _ = self._candidates(psm.body, _COLLIDING_LINKS, reach, ignore={grasp.object_id})
+        return not any(pb.getClosestPoints(psm.body, other, reach, physicsClientId=self._cid) for other in candidates)
 
     def _tool_motion(self, psm, dt: float) -> tuple:
         """(joint states, blade speed bound) of a tool for this period, asked for once (the carry and the tools'
@@ -277,16 +299,15 @@ class SubstepPlanner:
     def _candidates(self, body: int, links, reach: float, ignore=()) -> tuple[list, list]:
         """Bodies whose bounding boxes come within ``reach`` (scaled) of ``body``'s ``links``' (PyBullet's boxes
         include a collision margin of ~8 mm real, so they overlap near every floor), and the links' boxes."""
-        lo, hi = [math.inf] * 3, [-math.inf] * 3
-        boxes = []
-        for link in links:
-            a, b = pb.getAABB(body, link, self._cid)
-            boxes.append((a, b))
-            lo = [min(x, y) for x, y in zip(lo, a)]
-            hi = [max(x, y) for x, y in zip(hi, b)]
-        lo = [x - reach for x in lo]
-        hi = [x + reach for x in hi]
-        candidates = {other for other, _ in (self.client.getOverlappingObjects(lo, hi) or ())}
+        cid = self._cid
+        boxes = [pb.getAABB(body, link, cid) for link in links]
+        if len(boxes) == 1:
+            lo, hi = boxes[0]
+        else:
+            lows, highs = zip(*boxes)
+            lo, hi = [min(x) for x in zip(*lows)], [max(x) for x in zip(*highs)]
+        found = pb.getOverlappingObjects([x - reach for x in lo], [x + reach for x in hi], cid)
+        candidates = {other for other, _ in (found or ())}
         candidates.discard(body)
         candidates.difference_update(ignore)
         return sorted(candidates), boxes

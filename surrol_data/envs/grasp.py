@@ -56,6 +56,8 @@
    came out within 0.013 mm of with it. It is kept for moves where the limits bind, at one PyBullet call a step.
    Driven into the tray's floor or wall at full speed, the gauze ends as deep as on the weld (within 0.002 mm,
    seeds 0–2); benchmarks/physics_realism.py reads the same rows as without the carry (30 episodes).
+   A carrying arm that nothing can touch over the period, the carried object being the only one, is moved by its
+   motors' closed-form rule instead of PyBullet's steps (free_motion.py; within 2e-5 rad of PyBullet's own result).
 
 PyBullet keys pair filters by body ids, which removed bodies hand on: envs release every grasp before they
 respawn bodies.
@@ -218,6 +220,11 @@ class Grasp:
         rx, ry = centre[0] - origin[0], centre[1] - origin[1]
         weight = self._carry_load[0] * physics.GRAVITY[2]        # along z (negative)
         self._torque = (ry * weight, -rx * weight, 0.0)          # r × (0, 0, weight)
+
+    @property
+    def load_torque(self) -> tuple | None:
+        """While carried: the torque load_wrist applies (world frame), as plan_load last set it; else None."""
+        return self._torque if self.carried else None
 
     def load_wrist(self) -> None:
         """Before each physics step while carried (forces last one step in PyBullet)."""

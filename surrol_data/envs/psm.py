@@ -56,6 +56,9 @@ _BLADE_LEVERS = (1.0 / SCALING, 0.002, kin.WRIST_LENGTH + kin.TIP_LENGTH, kin.TI
 
 # Jaw blade: 1.4 mm thick (opening direction), 10.2 mm long, 1.8 mm wide; offset so closed blades meet.
 _JAW_HALF = np.array([0.0007, 0.0051, 0.0009])
+# Each jaw joint's limits: a blade cannot swing past the closed position (see _create_body).
+_JAW_LOWER = tuple(float(min(0.0, sign * (kin.JAW_LIMITS[1] / 2))) for sign in _JAW_SIGNS)
+_JAW_UPPER = tuple(float(max(0.0, sign * (kin.JAW_LIMITS[1] / 2))) for sign in _JAW_SIGNS)
 
 
 def _joint_speed_bound(state, target: float, cap: float, ramp_s: float) -> float:
@@ -204,9 +207,8 @@ class Psm:
             # A blade cannot swing past the closed position (into the other blade's place), however hard a
             # surface pushes it: the squeeze motor is weak (physics.JAW_MAX_FORCE), and without this stop a
             # closed jaw pushed over the pad under bang-bang input ended with its blades crossed by 11°.
-            half_open = kin.JAW_LIMITS[1] / 2
-            lower, upper = sorted((0.0, sign * half_open))
-            c.changeDynamics(body, j, jointLowerLimit=lower, jointUpperLimit=upper)
+            k = j - JAW_JOINTS[0]
+            c.changeDynamics(body, j, jointLowerLimit=_JAW_LOWER[k], jointUpperLimit=_JAW_UPPER[k])
         return body
 
     def respawn(self) -> None:
@@ -354,6 +356,38 @@ class Psm:
         goal = self._q_target.tolist()
         goal[2] *= SCALING
         self._goal_targets = tuple(goal) + self._goal_targets[6:]
+
+    @property
+    def jaw_limits(self) -> tuple:
+        """(lower, upper) joint limits of the two jaw joints, where PyBullet stops them (see _create_body)."""
+        return _JAW_LOWER, _JAW_UPPER
+
+    @property
+    def carried_centre(self) -> tuple:
+        """Where compensate_gravity's lift acts (world, scaled): the centre of the links 2–8, as last planned."""
+        return self._carried_com
+
+    @property
+    def carried_lift(self) -> tuple:
+        """compensate_gravity's lift (world, scaled): the weight of links 2–8, upwards."""
+        return self._carried_lift
+
+    def motor_ramp(self) -> tuple[list, list]:
+        """(targets, move): the motors' targets of joints 0–7 (PyBullet's units) where the period's ramp starts, and
+        the ramp's whole move (zero for all but the ramped joints, all zero once it is done): before physics step
+        ``i`` :meth:`ramp_targets` sets targets + move × min((i + 1) / RAMP_STEPS, 1) (at 1 the command itself)."""
+        motor = self._q_motor
+        ramped = motor[:3] if self._ramp_done else self._ramp_start
+        targets = [ramped[0], ramped[1], ramped[2] * SCALING] + motor[3:6] + list(self._goal_targets[6:])
+        if self._ramp_done:
+            return targets, [0.0] * 8
+        move = self._ramp_move
+        return targets, [move[0], move[1], move[2] * SCALING] + [0.0] * 5
+
+    def finish_ramp(self, steps: int) -> None:
+        """The motors where a period of ``steps`` physics steps' ramp_targets calls leaves them."""
+        if not self._ramp_done:
+            self.ramp_targets(min(steps, physics.RAMP_STEPS) - 1)
 
     def ramp_targets(self, step: int) -> None:
         """Before physics step ``step`` (0-based) of a control period: advance the motor targets along the ramp."""

@@ -18,6 +18,7 @@ from surrol_data.envs import kinematics as kin
 from surrol_data.envs import objects, physics
 from surrol_data.envs.adaptive_steps import SubstepPlanner
 from surrol_data.envs.ecm import SceneEndoscope
+from surrol_data.envs.free_motion import FreeMotion
 from surrol_data.envs.grasp import Grasp
 from surrol_data.envs.numeric import clip, norm
 from surrol_data.envs.physics import pb
@@ -291,6 +292,8 @@ class PsmEnv(gym.Env):
         carried = planner.carried
         for psm in arms:
             psm.plan_gravity_compensation()
+        if planner.free_arm is not None and self._move_free(planner.free_arm, steps, hook):
+            return
         steady_k = planner.steady_refinement(steps)
         k_now = 1
         for i in range(steps):
@@ -318,6 +321,24 @@ class PsmEnv(gym.Env):
             grasp.follow()
         if k_now != 1:
             self._set_time_step(physics.TIME_STEP)
+
+    def _move_free(self, grasp, steps: int, hook) -> bool:
+        """The period for an arm that touches nothing and carries the only object (SubstepPlanner.free_arm): moved by
+        its motors' closed-form rule (free_motion.py), if no motor would come near its force limit; else False."""
+        motion = FreeMotion.plan(grasp.psm, steps, physics.TIME_STEP, grasp.load_torque)
+        if motion is None:
+            return False
+        self._substeps.free_periods += 1
+        if hook is not None:   # (a probe sees every physics step's state)
+            for i in range(steps):
+                motion.set_step(i)
+                grasp.follow()
+                hook(self)
+        else:
+            motion.set_step(steps - 1)
+        grasp.psm.finish_ramp(steps)
+        grasp.follow()
+        return True
 
     def _set_time_step(self, dt: float) -> None:
         """Change the physics step and re-issue the motor commands: PyBullet turns a motor's force limit into an
