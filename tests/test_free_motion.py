@@ -28,21 +28,24 @@ def _held_action(policy: str, rng, oracle):
 @pytest.mark.parametrize("policy", ["oracle", "random", "bang-bang"])
 def test_closed_form_periods_are_what_pybullet_steps(monkeypatch, policy):
     """Every period the planner would move in closed form is stepped by PyBullet instead, and compared with the
-    closed form after each physics step: joints within 5e-5 (rad; scaled m for insertion; PyBullet's solver leaves
-    ~2e-5 of the coupled wrist rows unsolved), every motor's force within its limit (the closed form holds only
-    then) and within 10 % of its limit of the force predicted (FORCE_MARGIN leaves 20 %). Under bang-bang input
-    motors do reach their limits in free air: those periods were refused."""
-    periods = []   # per period offered to the closed form: [motion or None, forces, deviations, prediction errors]
+    closed form after each physics step: no contact pushes on the arm, joints within 5e-5 (rad; scaled m for
+    insertion; PyBullet's solver leaves ~2.5e-5 of the coupled wrist rows unsolved), every motor's force within its
+    limit (the closed form holds only then) and within 10 % of its limit of the force predicted (FORCE_MARGIN leaves
+    20 %). Under bang-bang input motors do reach their limits in free air: those periods were refused."""
+    # per period offered to the closed form: [motion or None, forces, deviations, prediction errors, contact forces]
+    periods = []
 
     def plan_but_step(self, grasp, steps, hook):
-        periods.append([FreeMotion.plan(grasp.psm, steps, physics.TIME_STEP, grasp.load_torque), [], [], []])
+        periods.append([FreeMotion.plan(grasp.psm, steps, physics.TIME_STEP, grasp.load_torque), [], [], [], []])
         return False
 
     def compare(env):
         if not periods or len(periods[-1][1]) >= physics.SUBSTEPS:
             return
-        motion, forces, deviations, errors = periods[-1]
-        states = pb.getJointStates(env.psm.body, range(8), physicsClientId=env.client._client)
+        motion, forces, deviations, errors, pushes = periods[-1]
+        cid = env.client._client
+        states = pb.getJointStates(env.psm.body, range(8), physicsClientId=cid)
+        pushes.append(max((c[9] for c in pb.getContactPoints(env.psm.body, physicsClientId=cid)), default=0.0))
         applied = np.array([s[3] for s in states])
         forces.append((np.abs(applied) / _LIMITS).max())
         if motion is not None:
@@ -58,12 +61,13 @@ def test_closed_form_periods_are_what_pybullet_steps(monkeypatch, policy):
     for seed in range(3):
         obs, _ = env.reset(seed=seed)
         for _ in range(50):
-            periods.append([None, [0.0] * physics.SUBSTEPS, [], []])   # (a full record: no period offered yet)
+            periods.append([None, [0.0] * physics.SUBSTEPS, [], [], []])   # (a full record: no period offered yet)
             a = u.oracle_action(obs)
             obs, *_ = env.step(_held_action(policy, rng, a) if u.grasp.attached else a)
     env.close()
     moved = [p for p in periods if p[0] is not None]
     assert len(moved) >= (2 if policy == "bang-bang" else 20)
+    assert max(max(p[4]) for p in moved) == 0.0
     assert max(max(p[2]) for p in moved) < 5e-5
     assert max(max(p[1]) for p in moved) < 1.0
     assert max(max(p[3]) for p in moved) < 0.1

@@ -13,9 +13,9 @@ When it holds (SubstepPlanner.free_arm: a single arm, whose object is carried ki
 links cannot come within ``adaptive_steps.CARRY_CLEARANCE_M`` of anything over the period; no other body moves)
 and the motors' forces stay within ``FORCE_MARGIN`` of their limits (:meth:`FreeMotion.plan`), the result is the
 exact solution of the constraints PyBullet's solver iterates towards: measured on GauzeRetrieve's carried periods
-(oracle, random and bang-bang input), PyBullet's own joint positions come within 2e-5 rad of it per physics step (its
-50 solver iterations leave that much of the coupled wrist rows unsolved), and the forces predicted here within 7 %
-of a motor's limit of those PyBullet reports (tests/test_free_motion.py).
+(oracle, random and bang-bang input), PyBullet's own joint positions come within 2.5e-5 rad of it per physics
+step (its 50 solver iterations leave that much of the coupled wrist rows unsolved), and the forces predicted here
+within 7 % of a motor's limit of those PyBullet reports (tests/test_free_motion.py).
 """
 
 from __future__ import annotations

@@ -57,7 +57,7 @@
    Driven into the tray's floor or wall at full speed, the gauze ends as deep as on the weld (within 0.002 mm,
    seeds 0–2); benchmarks/physics_realism.py reads the same rows as without the carry (30 episodes).
    A carrying arm that nothing can touch over the period, the carried object being the only one, is moved by its
-   motors' closed-form rule instead of PyBullet's steps (free_motion.py; within 2e-5 rad of PyBullet's own result).
+   motors' closed-form rule instead of PyBullet's steps (free_motion.py; within 2.5e-5 rad of PyBullet's own result).
 
 PyBullet keys pair filters by body ids, which removed bodies hand on: envs release every grasp before they
 respawn bodies.
