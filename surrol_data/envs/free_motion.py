@@ -37,7 +37,7 @@ assert physics.PSM_VELOCITY_GAIN == 1.0, "free motion's closed form assumes PyBu
 # of a limit of what PyBullet reports (GauzeRetrieve carried periods, bang-bang input); a motor predicted past this
 # share has its period stepped by PyBullet, which limits the force.
 FORCE_MARGIN = 0.8
-_LIFTED_JOINTS = (0, 1, 2)   # the joints before link 2, which Psm.compensate_gravity pushes up
+_LIFTED_JOINTS = (0, 1, 2)   # the joints that carry link 2, which Psm.compensate_gravity pushes up
 _MOVING = tuple(range(8))
 _ZEROS = [0.0] * 8
 _ORIGIN = (0.0, 0.0, 0.0)
@@ -77,9 +77,10 @@ class FreeMotion:
 
     @classmethod
     def plan(cls, psm, steps: int, dt: float, load_torque=None) -> FreeMotion | None:
-        """The period's ``steps`` physics steps of ``dt`` for ``psm``, or None where a motor would need more than
-        ``FORCE_MARGIN`` of its force limit (then PyBullet must step it). ``load_torque``: the torque a carried
-        object's weight puts on the wrist-yaw link (Grasp.plan_load), world frame. Reads PyBullet, changes nothing."""
+        """The period's ``steps`` physics steps of ``dt`` for ``psm``, or None where the rule does not hold (a motor
+        at its max velocity, a blade at its stop, a motor needing more than ``FORCE_MARGIN`` of its force limit):
+        then PyBullet must step it. ``load_torque``: the torque a carried object's weight puts on the wrist-yaw link
+        (Grasp.plan_load), world frame. Reads PyBullet, changes nothing."""
         cid = psm.client._client
         joint_states = pb.getJointStates(psm.body, _MOVING, physicsClientId=cid)
         q0 = [s[0] for s in joint_states]
@@ -114,7 +115,7 @@ class FreeMotion:
         # the Jacobian of the wrist-yaw link at that point has link 2's columns for joints 0–2, the lift's only
         # joints, and the wrist-yaw link's turn for every joint, the load torque's). The link's frame as PyBullet
         # has it stored: read without a forward-kinematics pass, which would move the solver's next result if
-        # PyBullet steps this period after all (a physics step stale: < 1e-3 N·m).
+        # PyBullet steps this period after all (it may be a physics step old; the tests bound the whole prediction).
         frame = pb.getLinkState(psm.body, EEF_LINK, physicsClientId=cid)
         inv_pos, inv_rot = pb.invertTransform(frame[4], frame[5])
         local = pb.multiplyTransforms(inv_pos, inv_rot, psm.carried_centre, _NO_TURN)[0]

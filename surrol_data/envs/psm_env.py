@@ -324,7 +324,7 @@ class PsmEnv(gym.Env):
 
     def _move_free(self, grasp, steps: int, hook) -> bool:
         """The period for an arm that touches nothing and carries the only object (SubstepPlanner.free_arm): moved by
-        its motors' closed-form rule (free_motion.py), if no motor would come near its force limit; else False."""
+        its motors' closed-form rule (free_motion.py) where that rule holds (FreeMotion.plan); else False."""
         motion = FreeMotion.plan(grasp.psm, steps, physics.TIME_STEP, grasp.load_torque)
         if motion is None:
             return False
