@@ -10,11 +10,12 @@ import surrol_data.envs  # noqa: F401  (registers the ids)
 from surrol_data.envs import adaptive_steps, physics
 from surrol_data.envs.free_motion import FreeMotion
 from surrol_data.envs.physics import pb
+from surrol_data.envs.psm import MOTOR_FORCE_LIMITS
 from surrol_data.envs.psm_env import PsmEnv
 
 from oracle_episode import run_oracle
 
-_LIMITS = np.array(tuple(physics.PSM_MAX_FORCE) + (physics.JAW_MAX_FORCE,) * 2)
+_LIMITS = np.array(MOTOR_FORCE_LIMITS)
 
 
 def _held_action(policy: str, rng, oracle):
@@ -36,7 +37,9 @@ def test_closed_form_periods_are_what_pybullet_steps(monkeypatch, policy):
     periods = []
 
     def plan_but_step(self, grasp, steps, hook):
-        periods.append([FreeMotion.plan(grasp.psm, steps, physics.TIME_STEP, grasp.load_torque), [], [], [], []])
+        states = self._substeps.joint_states(grasp.psm, physics.TIME_STEP)
+        periods.append([FreeMotion.plan(grasp.psm, states, steps, physics.TIME_STEP, grasp.load_torque), [], [], [],
+                        []])
         return False
 
     def compare(env):

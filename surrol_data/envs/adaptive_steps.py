@@ -96,10 +96,10 @@ class SubstepPlanner:
         self._bodies = bodies
         self._closing = [g for g in closing if g.object_id >= 0]
         self.free_arm = None
-        if FREE_ARM_MOTION and self.carry and not self._closing and self._tool_k == 1:
-            grasp = self.grasps[0]   # (a carry has a single arm)
-            # Nothing else moves: the arm carries every object there is.
-            if grasp.carried and not bodies and self._tool_clear(grasp, dt):
+        # Nothing else moves (the arm carries every object there is) and nothing can touch the arm.
+        if FREE_ARM_MOTION and self.carried and not bodies and not self._closing and self._tool_k == 1:
+            grasp = self.carried[0]   # (a carry has a single arm)
+            if self._tool_clear(grasp, dt):
                 self.free_arm = grasp
 
     def _plan_carry(self, dt: float) -> None:
@@ -159,10 +159,13 @@ class SubstepPlanner:
         it carries, which they do not collide with) over the period? Then no contact acts on the arm: PyBullet
         makes a contact's constraint only of a pair within a step's reach of touching."""
         psm = grasp.psm
-        states, bound = self._tool_motion(psm, dt)
+        bound = self._tool_motion(psm, dt)[1]
         reach = (bound * dt * physics.SUBSTEPS + CARRY_CLEARANCE_M) * SCALING
-        candidates, _ = self._candidates(psm.body, _COLLIDING_LINKS, reach, ignore={grasp.object_id})
-        return not any(pb.getClosestPoints(psm.body, other, reach, physicsClientId=self._cid) for other in candidates)
+        return not self._near_other_body(psm.body, _COLLIDING_LINKS, reach, ignore={grasp.object_id})
+
+    def joint_states(self, psm, dt: float) -> tuple:
+        """PyBullet's states of a tool's joints 0–7 this period (read once: see _tool_motion)."""
+        return self._tool_motion(psm, dt)[0]
 
     def _tool_motion(self, psm, dt: float) -> tuple:
         """(joint states, blade speed bound) of a tool for this period, asked for once (the carry and the tools'
@@ -315,11 +318,11 @@ class SubstepPlanner:
     def _near_other_body(self, body: int, links, reach: float, ignore=()) -> bool:
         """Is another body within ``reach`` (scaled) of ``body``'s ``links``? Bounding boxes first, then exact
         distances."""
-        c = self.client
         candidates, _ = self._candidates(body, links, reach, ignore)
         for other in candidates:
-            for link in links:
-                if c.getClosestPoints(body, other, reach, linkIndexA=link):
+            # (One query for all of the body's links, the points of the links asked for kept.)
+            for p in pb.getClosestPoints(body, other, reach, physicsClientId=self._cid):
+                if p[3] in links:
                     return True
         return False
 

@@ -26,7 +26,7 @@ import numpy as np
 
 from surrol_data.envs import physics
 from surrol_data.envs.physics import pb
-from surrol_data.envs.psm import EEF_LINK, JAW_JOINTS
+from surrol_data.envs.psm import EEF_LINK, JAW_JOINTS, MOTOR_FORCE_LIMITS, MOTOR_SPEED_CAPS
 
 # The rule above holds for a velocity gain of exactly 1 (with any other the joint's own velocity stays in it, and
 # that depends on the dynamics).
@@ -42,8 +42,8 @@ _MOVING = tuple(range(8))
 _ZEROS = [0.0] * 8
 _ORIGIN = (0.0, 0.0, 0.0)
 _NO_TURN = (0.0, 0.0, 0.0, 1.0)
-_FORCE_BOUNDS = FORCE_MARGIN * np.array(tuple(physics.PSM_MAX_FORCE) + (physics.JAW_MAX_FORCE,) * len(JAW_JOINTS))
-_SPEED_CAPS = np.array(tuple(physics.scaled_velocity_limits()) + (physics.JAW_MAX_VELOCITY,) * len(JAW_JOINTS))
+_FORCE_BOUNDS = FORCE_MARGIN * np.array(MOTOR_FORCE_LIMITS)
+_SPEED_CAPS = np.array(MOTOR_SPEED_CAPS)
 
 
 @functools.cache
@@ -76,13 +76,12 @@ class FreeMotion:
         self.forces = forces           # the motors' forces in it (as predicted; within FORCE_MARGIN of the limits)
 
     @classmethod
-    def plan(cls, psm, steps: int, dt: float, load_torque=None) -> FreeMotion | None:
-        """The period's ``steps`` physics steps of ``dt`` for ``psm``, or None where the rule does not hold (a motor
-        at its max velocity, a blade at its stop, a motor needing more than ``FORCE_MARGIN`` of its force limit):
-        then PyBullet must step it. ``load_torque``: the torque a carried object's weight puts on the wrist-yaw link
-        (Grasp.plan_load), world frame. Reads PyBullet, changes nothing."""
-        cid = psm.client._client
-        joint_states = pb.getJointStates(psm.body, _MOVING, physicsClientId=cid)
+    def plan(cls, psm, joint_states, steps: int, dt: float, load_torque=None) -> FreeMotion | None:
+        """The period's ``steps`` physics steps of ``dt`` for ``psm``, whose joints 0–7 start in ``joint_states``
+        (PyBullet's, Psm.moving_joint_states), or None where the rule does not hold (a motor at its max velocity, a
+        blade at its stop, a motor needing more than ``FORCE_MARGIN`` of its force limit): then PyBullet must step
+        it. ``load_torque``: the torque a carried object's weight puts on the wrist-yaw link (Grasp.plan_load),
+        world frame. Reads PyBullet, changes nothing."""
         q0 = [s[0] for s in joint_states]
         targets, move = psm.motor_ramp()
         motion = _period_basis(steps, dt) @ np.array([q0, targets, move, [s[1] for s in joint_states]])

@@ -24,6 +24,9 @@ from surrol_data.envs.units import SCALING
 ARM_JOINTS = (0, 1, 2, 3, 4, 5)
 JAW_JOINTS = (6, 7)
 HAND_LINKS = (3, 4)   # the tool's colliding links besides the blades: the shaft (on the roll link), the wrist
+# The motors' limits, joints 0–7 (PyBullet's units: insertion scaled): max velocity and max force.
+MOTOR_SPEED_CAPS = tuple(physics.scaled_velocity_limits().tolist()) + (physics.JAW_MAX_VELOCITY,) * len(JAW_JOINTS)
+MOTOR_FORCE_LIMITS = tuple(physics.PSM_MAX_FORCE) + (physics.JAW_MAX_FORCE,) * len(JAW_JOINTS)
 TIP_LINK = 8
 EEF_LINK = 5
 # Joint value of each jaw = sign × jaw angle / 2: the +x blade opens towards +x (a negative rotation about z).
@@ -101,9 +104,7 @@ class Psm:
         self.rcm_T_world = np.linalg.inv(self.world_T_rcm)
         self._cid = client._client     # PyBullet's client id, for the per-physics-step calls (no wrapper)
         self.body = self._build()
-        self._vmax = physics.scaled_velocity_limits()
-        self._vmax_list = self._vmax.tolist()
-        self._speed_caps = tuple(self._vmax) + (physics.JAW_MAX_VELOCITY,) * 2
+        self._vmax_list = list(MOTOR_SPEED_CAPS[:len(ARM_JOINTS)])
         self._goal_targets = (0.0,) * 8   # joints 0–7 where the motors are headed (insertion scaled)
         self._q_target = np.zeros(6)     # where the arm is going (the last accepted command)
         self._q_motor = [0.0] * 6        # what the motors are set to now
@@ -285,7 +286,7 @@ class Psm:
         if states is None:
             states = self.moving_joint_states()
         targets = self._goal_targets
-        caps = self._speed_caps
+        caps = MOTOR_SPEED_CAPS
         ramp = physics.RAMP_STEPS * dt
         reach = states[2][0] / SCALING + kin.WRIST_LENGTH + kin.TIP_LENGTH   # RCM to blade ends, real metres
         levers = (reach, reach) + _BLADE_LEVERS
@@ -300,7 +301,7 @@ class Psm:
         (``blade_bound``, from :meth:`blade_speed_bound` with the same ``states``) plus the offset times the
         revolute arm joints' speeds (the held point turns with them; the jaws do not carry it)."""
         targets = self._goal_targets
-        caps = self._speed_caps
+        caps = MOTOR_SPEED_CAPS
         ramp = physics.RAMP_STEPS * dt
         turn = 0.0
         for j in _HELD_REVOLUTE:

@@ -325,7 +325,8 @@ class PsmEnv(gym.Env):
     def _move_free(self, grasp, steps: int, hook) -> bool:
         """The period for an arm that touches nothing and carries the only object (SubstepPlanner.free_arm): moved by
         its motors' closed-form rule (free_motion.py) where that rule holds (FreeMotion.plan); else False."""
-        motion = FreeMotion.plan(grasp.psm, steps, physics.TIME_STEP, grasp.load_torque)
+        motion = FreeMotion.plan(grasp.psm, self._substeps.joint_states(grasp.psm, physics.TIME_STEP), steps,
+                                 physics.TIME_STEP, grasp.load_torque)
         if motion is None:
             return False
         self._substeps.free_periods += 1
