@@ -11,56 +11,16 @@ back to back (so state left over from an earlier episode would show), each episo
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import sys
 from pathlib import Path
 
-import gymnasium as gym
-import numpy as np
 from rich.console import Console
 from rich.progress import track
 from rich.table import Table
 
 import surrol_data.envs
-from surrol_data.envs import env_id
-
-
-def _feed(h, value) -> None:
-    if isinstance(value, dict):
-        for key in sorted(value):
-            h.update(str(key).encode())
-            _feed(h, value[key])
-    elif isinstance(value, (list, tuple)):
-        for v in value:
-            _feed(h, v)
-    else:
-        a = np.asarray(value)
-        h.update(str(a.dtype).encode() + str(a.shape).encode())
-        h.update(np.ascontiguousarray(a).tobytes())
-
-
-def fingerprint(task: str, episodes: int = 2) -> str:
-    """Hex digest over every (obs, reward, terminated, truncated, info) of the task's seeded episodes."""
-    env = gym.make(env_id(task))
-    h = hashlib.sha256()
-    oracle = env.unwrapped.oracle_action
-    for policy in ("oracle", "random"):
-        for seed in range(episodes):
-            rng = np.random.default_rng(1000 + seed)
-            obs, info = env.reset(seed=seed)
-            _feed(h, (obs, info))
-            done = False
-            while not done:
-                if policy == "oracle":
-                    action = oracle(obs)
-                else:
-                    action = rng.uniform(-1.0, 1.0, env.action_space.shape).astype(np.float32)
-                obs, reward, terminated, truncated, info = env.step(action)
-                _feed(h, (obs, reward, terminated, truncated, info))
-                done = terminated or truncated
-    env.close()
-    return h.hexdigest()
+from surrol_data.envs.fingerprint import env_fingerprint
 
 
 def main() -> None:
@@ -75,7 +35,7 @@ def main() -> None:
     expected = json.loads(args.check.read_text()) if args.check else {}
     if expected and expected.get("episodes") != args.episodes:
         sys.exit(f"{args.check} was saved with --episodes {expected.get('episodes')}; check with the same count")
-    got = {task: fingerprint(task, args.episodes) for task in track(args.tasks, description="fingerprinting")}
+    got = {task: env_fingerprint(task, args.episodes) for task in track(args.tasks, description="fingerprinting")}
     table = Table(title=f"env fingerprints ({args.episodes} oracle + {args.episodes} random episodes per task)")
     for col in ("task", "sha256", "saved"):
         table.add_column(col)

@@ -352,21 +352,39 @@ def report(runs: list[Path] = typer.Argument(..., help="Training run folders, or
 
 @app.command()
 def study(experiment: str = typer.Argument(..., help="A study experiment config: table1 or table1_quick."),
-          out: Path = typer.Option(..., help="Folder for the demo sets, the runs and the report."),
+          out: Path = typer.Option(..., help="Folder for the runs and the report (e.g. docs/results/table1)."),
+          next_runs: Optional[int] = typer.Option(None, "--next", min=1,
+                                                  help="Train the next N runs not finished yet (a fixed order that "
+                                                       "interleaves sources and seeds), then rebuild the report."),
+          runs: Optional[str] = typer.Option(None, help="Train these runs, e.g. expert/0,novice/1."),
+          report_only: bool = typer.Option(False, "--report", help="Train nothing: rebuild the report from the "
+                                                                   "finished runs."),
+          build_demos: bool = typer.Option(False, help="Build the study's shipped demo sets (datasets/…) and their "
+                                                       "manifest first."),
+          check_code: bool = typer.Option(False, help="Record this checkout's code identity on this machine in "
+                                                      "OUT/code_checks.jsonl and check it against the finished runs."),
           natural: bool = typer.Option(False, help="Use the operators' natural pace instead of demo sets matched "
                                                    "to the paper's."),
           override: list[str] = typer.Option([], help="Hydra override for every run, e.g. algo=ddpgbc_warm "
                                                       "(repeatable).")):
-    """The Table I study in one command: build the demo sets, train every run (one batched ensemble), report."""
+    """The Table I study, run by run: train pending runs (all, --next N or --runs), then report on the finished."""
     from surrol_data.datasets.reader import DatasetError
     from surrol_data.evaluation.study_report import StudyReportError
     from surrol_data.study import run_study
 
+    if sum(x is not None and x is not False for x in (next_runs, runs, report_only or None)) > 1:
+        _fail("--next, --runs and --report choose what to train: give one of them")
     try:
-        files = run_study(experiment, out, natural=natural, overrides=override, command=_this_command())
+        files = run_study(experiment, out, natural=natural, overrides=override, next_runs=next_runs, runs=runs,
+                          train=not report_only and not (check_code and next_runs is None and runs is None),
+                          build_demos=build_demos, check_code=check_code, command=_this_command(),
+                          say=console.print)
     except (StudyReportError, DatasetError, ValueError, FileNotFoundError, RuntimeError) as e:
         _fail(str(e))
-    console.print(f"wrote {files['markdown']}, {files['html']} and {files['curves']}")
+    if files:
+        console.print(f"wrote {files['markdown']}, {files['html']} and {files['curves']}")
+    else:
+        console.print(f"no finished runs in {out / 'runs'} yet: no report written")
 
 
 @app.command("train-bc")

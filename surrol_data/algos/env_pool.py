@@ -27,7 +27,7 @@ import numpy as np
 
 from surrol_data.algos.normalizer import standardize
 
-INFO_KEYS = ("is_success", "tip_position", "jaw_angle")
+INFO_KEYS = ("is_success", "tip_position", "jaw_angle", "grasped")
 
 
 @dataclass
@@ -97,7 +97,7 @@ def _rollout(envs: list, seeds: np.ndarray, snapshot: PolicySnapshot | None, exp
     """``seeds`` (R, E): R rounds of one episode in each of the E envs. ``explore`` (training): ``noise`` (E, T, A)
     added to π and clipped to [-1, 1], then ``random`` (E, T, A) where ``replace`` (E, T) is set; without it
     the deterministic policy acts (evaluation). Returns (R, E, ...) arrays: obs/ag/g (T+1 rows), action,
-    reward, success (T rows), tip_position, jaw_angle (T+1 rows)."""
+    reward, success, grasped (T rows; grasped where the env reports it), tip_position, jaw_angle (T+1 rows)."""
     actor = SnapshotActor(snapshot) if snapshot is not None else None
     act_dim = envs[0].action_space.shape[0]
     rounds = []
@@ -108,6 +108,8 @@ def _rollout(envs: list, seeds: np.ndarray, snapshot: PolicySnapshot | None, exp
         trace = {k: [v] for k, v in obs.items()}
         trace.update({"tip_position": [info["tip_position"]], "jaw_angle": [info["jaw_angle"]],
                       "action": [], "reward": [], "success": []})
+        if "grasped" in info:
+            trace["grasped"] = []
         for t in range(steps):
             a = (actor(obs["observation"], obs["desired_goal"]) if actor is not None
                  else np.zeros((len(envs), act_dim), np.float32))
@@ -122,6 +124,8 @@ def _rollout(envs: list, seeds: np.ndarray, snapshot: PolicySnapshot | None, exp
             trace["action"].append(a)
             trace["reward"].append(np.array([r[1] for r in results], np.float32))
             trace["success"].append(info["is_success"] > 0.5)
+            if "grasped" in trace:
+                trace["grasped"].append(np.asarray(info["grasped"]).reshape(len(envs), -1) > 0.5)
         rounds.append({k: np.stack(v, 1) for k, v in trace.items()})   # (E, T(+1), ...)
     return {k: np.stack([r[k] for r in rounds]) for k in rounds[0]}
 

@@ -48,9 +48,26 @@ from surrol_data.algos.replay import EpisodeReplay, rng_from_tensor, rng_state_t
 from surrol_data.algos.train import (CHECKPOINT_FORMAT, EVAL_SEED_BASE, TRAIN_SEED_STRIDE, RunLog, TrainConfig,
                                      _check, _config_json, _write_json, claim_run_dir, make_env)
 from surrol_data.datasets.trajectory import Trajectory
-from surrol_data.evaluation.metrics import summarize, trajectory_proficiency
+from surrol_data.evaluation.metrics import first_grasp_failed, summarize, trajectory_proficiency
 
 PREV = "checkpoint.prev.pt"
+
+
+EPISODES_FILE = "eval_episodes.csv"
+
+
+def _write_episode_rows(run_dir: Path, epoch: int, rows: list[dict]) -> None:
+    """Add (or, after a resume, replace) the epoch's per-episode evaluation rows in ``eval_episodes.csv``."""
+    import pandas as pd
+
+    path = run_dir / EPISODES_FILE
+    new = pd.DataFrame([{"epoch": epoch, **r} for r in rows])
+    if path.is_file():
+        old = pd.read_csv(path)
+        new = pd.concat([old[old["epoch"] != epoch], new], ignore_index=True)
+    tmp = path.with_suffix(".tmp")
+    new.to_csv(tmp, index=False)
+    os.replace(tmp, path)
 
 
 def _check_members(cfgs: list[TrainConfig]) -> None:
@@ -100,8 +117,12 @@ class _Member:
 
 
 def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int = 2,
-                  progress: bool = True, worker_nice: int = 0, widen_threads: bool = True) -> list[list[dict]]:
+                  progress: bool = True, worker_nice: int = 0, widen_threads: bool = True,
+                  episode_epochs: tuple[int, ...] = ()) -> list[list[dict]]:
     """Train (or resume) the runs ``cfgs`` as one ensemble; returns every member's per-epoch rows.
+
+    ``episode_epochs``: epochs whose evaluation episodes are also written one row each (success, steps, path,
+    failed grasps, whether a failed first grasp was recovered) to ``eval_episodes.csv`` in every run folder.
 
     ``widen_threads``: let the learner use the cores the workers leave idle when that is measured faster
     (:mod:`~surrol_data.algos.learner_threads`); False keeps it at ``torch_threads`` (the benchmark's baseline).
@@ -165,7 +186,7 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
 
     def finish_epoch(extras: list[dict], started: float) -> None:
         t_eval = time.perf_counter()
-        scores = _evaluate(pool, learner, s.eval_episodes, s.max_episode_steps, per_member_envs)
+        scores, episode_rows = _evaluate(pool, learner, s.eval_episodes, s.max_episode_steps, per_member_envs)
         eval_s = time.perf_counter() - t_eval
         elapsed = time.perf_counter() - started
         # CPU seconds of this process (learner) and of the env workers in the epoch: with the wall time they
@@ -182,6 +203,8 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
             m.state["wall_s"] += elapsed  # the ensemble's epoch: every member waited for all of it
             row["wall_s"] = round(m.state["wall_s"], 3)
             m.log.append(row)
+            if m.state["epoch"] in episode_epochs:   # per-episode records at the epochs a report reads closely
+                _write_episode_rows(m.run_dir, m.state["epoch"], episode_rows[i])
             learner.policy(i).save(m.run_dir / "policy.pt")
         # the checkpoints' contents are taken now; writing them (hundreds of MB once the buffers fill) waits
         # for the next epoch's first rollout, when the learner has no updates to run
@@ -312,9 +335,11 @@ def _start_collect(pool: EnvPool, learner: EnsembleDDPG, members: list[_Member],
     pool.rollout_async(seeds, learner.snapshot(), member_of_env, explore)
 
 
-def _evaluate(pool: EnvPool, learner: EnsembleDDPG, episodes: int, steps: int, per_member: int) -> list[dict]:
+def _evaluate(pool: EnvPool, learner: EnsembleDDPG, episodes: int, steps: int,
+              per_member: int) -> tuple[list[dict], list[list[dict]]]:
     """Every member's deterministic evaluation on the single run's seeds, through the pool (one message per
-    worker for all rounds), scored by the proficiency metrics."""
+    worker for all rounds), scored by the proficiency metrics: the epoch's scores per member, and per member one
+    row of metrics per episode (with grasp events where the env reports them)."""
     n_members = len(learner)
     rounds = -(-episodes // per_member)
     seeds = [[EVAL_SEED_BASE + r * per_member + j for _ in range(n_members) for j in range(per_member)]
@@ -328,17 +353,31 @@ def _evaluate(pool: EnvPool, learner: EnsembleDDPG, episodes: int, steps: int, p
             if r * per_member + j >= episodes:
                 continue
             tip = out["tip_position"][r, e]
+            flags = {"grasped": out["grasped"][r, e]} if "grasped" in out else {}
             trajectories[i].append(Trajectory(
                 observation=out["observation"][r, e], achieved_goal=out["achieved_goal"][r, e],
                 desired_goal=out["desired_goal"][r, e], action=out["action"][r, e], reward=out["reward"][r, e],
                 success=out["success"][r, e], terminated=np.zeros(steps, bool),
-                tip_position=tip.reshape(len(tip), -1, 3), jaw_angle=out["jaw_angle"][r, e].reshape(len(tip), -1)))
-    scores = []
+                tip_position=tip.reshape(len(tip), -1, 3), jaw_angle=out["jaw_angle"][r, e].reshape(len(tip), -1),
+                flags=flags))
+    scores, episode_rows = [], []
     for trajs in trajectories:
-        sm = summarize([trajectory_proficiency(t) for t in trajs])
+        results = [trajectory_proficiency(t) for t in trajs]
+        sm = summarize(results)
         scores.append({"success_rate": sm["final_success_rate"], "any_success_rate": sm["success_rate"],
                        "steps_to_complete": sm["mean_steps_to_success"], "economy_of_motion_cm": sm["mean_path_length_cm"]})
-    return scores
+        rows = []
+        for k, (t, p) in enumerate(zip(trajs, results)):
+            first_failed = (first_grasp_failed(t.action[:, -1], t.flags["grasped"]) if "grasped" in t.flags
+                            else None)
+            rows.append({"episode": k, "seed": EVAL_SEED_BASE + k, "final_success": p.final_success,
+                         "success": p.success, "steps_to_success": p.steps_to_success,
+                         "path_length_cm": p.path_length_cm, "jaw_closures": p.jaw_closures,
+                         "failed_grasps": p.failed_grasps, "drops": p.drops, "idle_time_s": p.idle_time_s,
+                         "first_grasp_failed": first_failed,
+                         "recovered": None if first_failed is None else bool(first_failed and p.final_success)})
+        episode_rows.append(rows)
+    return scores, episode_rows
 
 
 # ---------------------------------------------------------------------- checkpoints, one per member

@@ -135,6 +135,18 @@ def failed_grasps(jaw_command: np.ndarray, grasped: np.ndarray) -> int:
     return failed
 
 
+def first_grasp_failed(jaw_command: np.ndarray, grasped: np.ndarray) -> bool | None:
+    """Whether the first closure of the jaw (any arm) held nothing; None when the jaw never closed. The paper's
+    qualitative finding is about what a policy does next: retry (recover) or stall."""
+    closed = _columns(np.asarray(jaw_command, np.float64) < 0).any(axis=1)
+    held = _columns(np.asarray(grasped, bool)).any(axis=1)
+    if not closed.any():
+        return None
+    start = int(np.argmax(closed))
+    end = start + int(np.argmax(~closed[start:])) if (~closed[start:]).any() else len(closed)
+    return not bool(held[start:end].any())
+
+
 def drops(jaw_command: np.ndarray, grasped: np.ndarray, success: np.ndarray) -> int:
     """Holds that end while the jaw is still commanded closed and before the task succeeded (per arm, summed).
 

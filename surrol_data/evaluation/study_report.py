@@ -63,6 +63,7 @@ class Run:
     seed: int
     rows: list[dict]
     config: dict
+    record: dict | None = None      # run.json of a study run: code identity, versions, demo hash, times
 
     def at_epoch(self, epoch: int) -> dict | None:
         for row in self.rows:
@@ -83,9 +84,12 @@ def _read_run(path: Path) -> Run:
     config = json.loads(config_path.read_text())
     env_id = str(config.get("env_id", "?"))
     task = env_id.split("/")[-1].rsplit("-v", 1)[0]
-    return Run(path=path, task=task, algo=str(config.get("algo_name", config.get("learner", "?"))),
+    record_path = path / "run.json"
+    record = json.loads(record_path.read_text()) if record_path.is_file() else None
+    algo = (record or {}).get("algo") or config.get("algo_name", config.get("learner", "?"))
+    return Run(path=path, task=task, algo=str(algo),
                source=demo_source(config.get("demos") or {}), seed=int(config.get("seed", 0)), rows=rows,
-               config=config)
+               config=config, record=record)
 
 
 def demo_source(demos: dict) -> str:
@@ -154,6 +158,47 @@ def _paper_cell(epoch: int, metric: str, source: str, scale: float) -> str:
     return f"{mean:.1f}" if std is None else f"{mean:.1f} ± {std:.1f}"
 
 
+def _with_ci(est: Estimate, digits: int, scale: float) -> str:
+    """``mean ± std [low, high]``: the bootstrap 95 % interval of the mean over seeds where there are two or more."""
+    text = est.format(digits, scale)
+    if est.n >= 2 and math.isfinite(est.ci_low):
+        text += f" [{est.ci_low * scale:.{digits}f}, {est.ci_high * scale:.{digits}f}]"
+    return text
+
+
+def recovery_rows(runs: Sequence[Run], epoch: int) -> list[dict]:
+    """Per source, at ``epoch``: evaluation episodes whose first grasp failed, and how many of those the policy
+    recovered from (final success), pooled over seeds from each run's ``eval_episodes.csv``."""
+    import pandas as pd
+
+    rows = []
+    for source, group in by_source(runs).items():
+        frames = []
+        for run in group:
+            path = run.path / "eval_episodes.csv"
+            if path.is_file():
+                ep = pd.read_csv(path)
+                frames.append(ep[ep["epoch"] == epoch])
+        if not frames:
+            continue
+        ep = pd.concat(frames)
+        first_failed = ep["first_grasp_failed"].astype(str).str.lower() == "true"
+        recovered = ep["recovered"].astype(str).str.lower() == "true"
+        n_failed = int(first_failed.sum())
+        rows.append({"source": source, "seeds": len(frames), "episodes": len(ep),
+                     "closed_jaw": int(ep["first_grasp_failed"].notna().sum()), "first_failed": n_failed,
+                     "recovered": int(recovered.sum()),
+                     "rate": f"{100 * recovered.sum() / n_failed:.0f} %" if n_failed else "–",
+                     "failed_grasps": float(ep["failed_grasps"].mean())})
+    return rows
+
+
+RECOVERY_COLUMNS = (Column("source", "Source"), Column("seeds", "Seeds"), Column("episodes", "Episodes"),
+                    Column("closed_jaw", "Closed the jaw"), Column("first_failed", "First grasp failed"),
+                    Column("recovered", "…then succeeded"), Column("rate", "Recovery rate"),
+                    Column("failed_grasps", "Failed grasps / episode", lambda v: f"{v:.2f}"))
+
+
 def table1_markdown(estimates: Mapping[int, Mapping[str, Mapping[str, Estimate]]], sources: Sequence[str]) -> str:
     """Rows: metric × epoch; columns: ours and the paper's for each demo source."""
     columns = [Column("metric", "Metric"), Column("epoch", "Epoch")]
@@ -165,7 +210,7 @@ def table1_markdown(estimates: Mapping[int, Mapping[str, Mapping[str, Estimate]]
             row = {"metric": label, "epoch": str(epoch)}
             for s in sources:
                 est = per_metric[metric].get(s)
-                row[f"ours_{s}"] = est.format(digits, scale) if est else "–"
+                row[f"ours_{s}"] = _with_ci(est, digits, scale) if est else "–"
                 row[f"paper_{s}"] = _paper_cell(epoch, metric, s, scale)
             rows.append(row)
     return metrics_table_markdown(rows, columns)
@@ -193,7 +238,7 @@ def plot_learning_curves(path: str | Path, runs: Sequence[Run], title: str | Non
             with np.errstate(invalid="ignore"), _quiet_nan_warnings():
                 mean = np.nanmean(values, axis=0)
                 std = np.nanstd(values, axis=0)
-            ax.plot(epochs, mean, color=colour, marker="o", markersize=3, label=f"{source} ({len(group)} seeds)")
+            ax.plot(epochs, mean, color=colour, marker="o", markersize=3, label=f"{source} ({len(group)} seed{'' if len(group) == 1 else 's'})")
             ax.fill_between(epochs, mean - std, mean + std, color=colour, alpha=0.2, linewidth=0)
             ax.set_ylabel(label)
     axes[0].set_ylim(-2, 102)
@@ -225,7 +270,7 @@ class _quiet_nan_warnings:
         return self._ctx.__exit__(*exc)
 
 
-def _versions() -> dict[str, str]:
+def versions() -> dict[str, str]:
     out = {"python": platform.python_version()}
     for pkg in ("surrol-data", "torch", "lerobot", "pybullet", "gymnasium", "numpy"):
         try:
@@ -243,43 +288,88 @@ def _git_commit() -> str:
         return "unknown"
 
 
-def _provenance_markdown(runs: Sequence[Run], command: str | None) -> str:
-    lines = ["| source | seeds | epochs | run folders |", "|:---|---|---:|:---|"]
-    for source, group in by_source(runs).items():
-        seeds = ", ".join(str(r.seed) for r in group)
-        lines.append(f"| {source} | {seeds} | {min(r.epochs for r in group)} | "
-                     + "<br>".join(f"`{r.path}`" for r in group) + " |")
-    versions = ", ".join(f"{k} {v}" for k, v in _versions().items())
+def _provenance_markdown(runs: Sequence[Run], command: str | None, report_dir: Path) -> str:
+    lines = ["| source | seed | epochs | commit | CPU time | wall time | run folder |", "|:---|---:|---:|:---|---:|---:|:---|"]
+    for run in runs:
+        rec = run.record or {}
+        code, when = rec.get("code", {}), rec.get("time", {})
+        hours = lambda s: f"{s / 3600:.2f} h" if s else "–"  # noqa: E731
+        lines.append(f"| {run.source} | {run.seed} | {run.epochs} | {code.get('commit', '–')[:10]} | "
+                     f"{hours(when.get('cpu_s'))} | {hours(when.get('wall_s'))} | `{_shown_path(run.path, report_dir)}` |")
+    package_versions = ", ".join(f"{k} {v}" for k, v in versions().items())
     cmd = f"\n\nReport command: `{command}`" if command else ""
     tasks = sorted({r.task for r in runs})
     algos = sorted({r.algo for r in runs})
-    return ("\n".join(lines) + f"\n\nTask: {', '.join(tasks)}; algorithm: {', '.join(algos)}. Versions: {versions}; "
+    return ("\n".join(lines) + f"\n\nTask: {', '.join(tasks)}; algorithm: {', '.join(algos)}. Versions: {package_versions}; "
             f"commit {_git_commit()}.{cmd}\n")
+
+
+def check_runs_code(runs: Sequence[Run], code_checks: Sequence = ()) -> None:
+    """Refuse runs whose recorded code identity (run.json) differs in meaning (see
+    :mod:`surrol_data.evaluation.code_identity`); runs without a record (plain training runs) are not checked."""
+    from surrol_data.evaluation.code_identity import CodeIdentity, CodeIdentityError, check_same_code
+
+    identities = {f"run {r.source}/{r.seed} ({r.path})": CodeIdentity.from_dict(r.record["code"])
+                  for r in runs if r.record and "code" in r.record}
+    try:
+        check_same_code(identities, list(code_checks))
+    except CodeIdentityError as e:
+        raise StudyReportError(str(e)) from None
+
+
+def _shown_path(path: Path, report_dir: Path) -> str:
+    """A run folder as a reader of the report finds it: relative to the report when below it."""
+    try:
+        return path.resolve().relative_to(report_dir.resolve()).as_posix()
+    except ValueError:
+        return str(path)
 
 
 def write_study_report(run_paths: Sequence[str | Path], out: str | Path, *, epochs: Sequence[int] | None = None,
                        demo_table_markdown: str | None = None, notes: str | None = None,
-                       command: str | None = None, title: str = "Does who demonstrated matter?") -> dict[str, Path]:
-    """Write report.md, report.html and learning_curves.png into ``out``; returns their paths."""
+                       command: str | None = None, title: str = "Does who demonstrated matter?",
+                       expected_runs: Sequence[str] | None = None, code_checks: Sequence = ()) -> dict[str, Path]:
+    """Write report.md, report.html and learning_curves.png into ``out``; returns their paths.
+
+    ``expected_runs`` (``source/seed`` names): the study's runs; a report standing on fewer is marked partial and
+    names the missing ones. Runs that recorded a code identity must mean the same code (``code_checks`` adds the
+    study's before/after checks), else :class:`StudyReportError`."""
     runs = discover_runs(run_paths)
+    check_runs_code(runs, code_checks)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     at = report_epochs(runs, epochs)
     sources = list(by_source(runs))
     estimates = table1_estimates(runs, at)
     curves = plot_learning_curves(out / CURVES_FILE, runs, title=f"{runs[0].task}: evaluation per epoch")
+    have = [f"{r.source}/{r.seed}" for r in runs]
+    missing = [name for name in (expected_runs or []) if name not in have]
+    partial = ""
+    if missing:
+        title += " (partial)"
+        partial = (f"**Partial study: this report stands on {len(have)} of the study's {len(expected_runs)} runs** "
+                   f"({', '.join(have)}). Missing: {', '.join(missing)}. Every figure below changes as runs are "
+                   "added.\n")
     sections = [
         f"# {title}\n",
+        *([partial] if partial else []),
         "Policies trained on demonstrations of each source, evaluated every epoch on unseen seeds. "
-        f"Table I layout: ours (mean ± std over seeds) beside the paper's, at epochs {', '.join(map(str, at))}.\n",
+        f"Table I layout: ours (mean ± std over seeds, then the bootstrap 95 % interval of the mean) beside the "
+        f"paper's, at epochs {', '.join(map(str, at))}.\n",
         "## Table I\n", table1_markdown(estimates, sources),
         f"\n## Learning curves\n\n![learning curves]({CURVES_FILE})\n",
     ]
+    recovery = recovery_rows(runs, at[0])
+    if recovery:
+        sections += [f"\n## Recovery after a failed first grasp (epoch {at[0]})\n",
+                     "The paper saw policies trained on human demos retry after a failed grasp, where script-trained "
+                     "ones did not. Of the evaluation episodes whose first jaw closure held nothing, how many still "
+                     "ended in success, pooled over seeds:\n\n" + metrics_table_markdown(recovery, RECOVERY_COLUMNS)]
     if demo_table_markdown:
         sections += ["\n## Demonstrations\n", demo_table_markdown]
     if notes:
         sections += ["\n## Notes\n", notes.strip() + "\n"]
-    sections += ["\n## What made these numbers\n", _provenance_markdown(runs, command)]
+    sections += ["\n## What made these numbers\n", _provenance_markdown(runs, command, out)]
     markdown = "\n".join(sections)
     md_path = out / "report.md"
     md_path.write_text(markdown)

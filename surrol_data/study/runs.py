@@ -1,0 +1,223 @@
+"""The study run by run: train the next pending runs, commit-ready run folders, the report from what is done.
+
+A run (one demo source, one seed) is the unit: it trains in ``OUT/.work/<source>/seed<k>`` (checkpoints, resumable
+after a kill with the same command), and when it finishes its small, final record is moved into
+``OUT/runs/<source>/seed<k>/`` in one rename:
+
+* ``metrics.csv`` / ``metrics.jsonl``: the per-epoch evaluation (success, steps to complete, economy of motion,
+  losses, timings);
+* ``eval_episodes.csv``: one row per evaluation episode at the report epochs (success, steps, path, failed
+  grasps, whether a failed first grasp was recovered);
+* ``config.yaml`` (the composed Hydra config) and ``config.json`` (the training config the report reads);
+* ``run.json``: the code identity (commit, CPU, env / learner / config fingerprints), package versions, the demo
+  set's content hash, CPU and wall time;
+* ``policy.pt``: the final actor (``surrol-data eval --policy`` runs it).
+
+A finished run's folder is all the report needs; the report is rebuilt from whatever runs are there and says
+which of the study's runs it stands on.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import time
+from collections.abc import Sequence
+from dataclasses import replace
+from pathlib import Path
+
+from surrol_data.evaluation.code_identity import (CodeIdentity, append_check, check_same_code, read_checks)
+from surrol_data.study.demo_sets import (build_demo_sets, build_shipped_demo_sets, check_shipped, demo_quality,
+                                         demo_quality_markdown, set_paths, tree_hash)
+from surrol_data.study.identity import current_identity, repo_root
+from surrol_data.study.spec import StudySpec, load_spec, parse_runs, run_name
+
+RUN_RECORD = "run.json"
+CHECKS_FILE = "code_checks.jsonl"
+KEPT = ("metrics.csv", "metrics.jsonl", "eval_episodes.csv", "policy.pt")
+
+
+def run_folder(out: Path, source: str, seed: int) -> Path:
+    return out / "runs" / source / f"seed{seed}"
+
+
+def finished_runs(out: Path, spec: StudySpec) -> list[tuple[str, int]]:
+    return [r for r in spec.run_order() if (run_folder(out, *r) / RUN_RECORD).is_file()]
+
+
+def committed_identities(out: Path, spec: StudySpec) -> dict[str, CodeIdentity]:
+    found = {}
+    for source, seed in finished_runs(out, spec):
+        record = json.loads((run_folder(out, source, seed) / RUN_RECORD).read_text())
+        found[f"run {run_name(source, seed)}"] = CodeIdentity.from_dict(record["code"])
+    return found
+
+
+def _demo_root(spec: StudySpec, out: Path) -> Path | None:
+    shipped = spec.shipped_demo_dir()
+    if shipped is None:
+        return None
+    path = Path(shipped)
+    return path if path.is_absolute() else repo_root() / path
+
+
+def prepare_demo_sets(spec: StudySpec, out: Path, *, build: bool, progress: bool) -> tuple[dict[str, Path], dict]:
+    """The study's demo sets (source -> dataset) and their hashes (dataset name -> sha256): the shipped ones,
+    checked against their manifest (built first with ``build``), or OUT/demos built here for a study without."""
+    root = _demo_root(spec, out)
+    if root is None:
+        sets = build_demo_sets(out / "demos", spec, progress=progress)
+        return sets, {p.name: tree_hash(p) for p in dict.fromkeys(sets.values())}
+    if build:
+        build_shipped_demo_sets(root, spec, progress=progress)
+    return set_paths(root, spec), check_shipped(root, spec)
+
+
+def _compose(spec: StudySpec, experiment: str, out: Path, sets: dict[str, Path], runs, progress: bool) -> list:
+    from hydra import compose, initialize_config_dir
+
+    from surrol_data.train_app import config_dir
+
+    given = {o.split("=", 1)[0].lstrip("+~") for o in (*spec.run_overrides, *spec.overrides)}
+    cfgs = []
+    with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
+        for source, seed in runs:
+            base = [f"algo={spec.algo}", f"task={spec.task}", f"experiment={experiment}", f"demos={source}",
+                    f"demos.path={sets[source]}", f"demos.num={spec.episodes}", f"seed={seed}",
+                    f"run_dir={out / '.work' / source / f'seed{seed}'}", "resume=true", "tensorboard=false",
+                    f"progress={str(progress).lower()}"]
+            base = [o for o in base if o.split("=", 1)[0] not in given]   # the config's and the user's win
+            cfgs.append(compose("config", overrides=[*base, *spec.run_overrides, *spec.overrides]))
+    return cfgs
+
+
+def _start_batch(out: Path, names: list[str]) -> None:
+    """A kill leaves the batch's checkpoints; a later batch of other runs cannot resume them (an ensemble resumes
+    whole), so its runs start afresh."""
+    work = out / ".work"
+    record = work / "batch.json"
+    before = json.loads(record.read_text()) if record.is_file() else []
+    if before != names:
+        for name in names:
+            source, seed = name.split("/")
+            shutil.rmtree(work / source / f"seed{seed}", ignore_errors=True)
+    work.mkdir(parents=True, exist_ok=True)
+    record.write_text(json.dumps(names))
+
+
+def _finish_run(out: Path, spec: StudySpec, source: str, seed: int, work: Path, composed, identity: CodeIdentity,
+                demo_hash: dict, started: float, members: int) -> Path:
+    """Move a trained run's record into ``OUT/runs/<source>/seed<k>`` (one rename) and drop its checkpoints."""
+    from omegaconf import OmegaConf
+
+    from surrol_data.evaluation.study_report import versions
+
+    final = run_folder(out, source, seed)
+    tmp = final.with_name(f".{final.name}.partial")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    for name in KEPT:
+        if (work / name).exists():
+            shutil.copy2(work / name, tmp / name)
+    config = json.loads((work / "config.json").read_text())
+    config["run_dir"] = final.relative_to(out).as_posix()
+    (tmp / "config.json").write_text(json.dumps(config, indent=2))
+    (tmp / "config.yaml").write_text(OmegaConf.to_yaml(composed, resolve=True))
+    rows = [json.loads(line) for line in (work / "metrics.jsonl").read_text().splitlines() if line.strip()]
+    cpu = sum(r.get("time_cpu_learner_s", 0.0) + r.get("time_cpu_envs_s", 0.0) for r in rows)
+    dataset = Path(config["demos"]["path"]).name
+    record = {
+        "study": spec.experiment, "source": source, "seed": seed, "task": spec.task, "algo": spec.algo,
+        "epochs": max(int(r["epoch"]) for r in rows), "code": identity.as_dict(), "versions": versions(),
+        "demos": {"dataset": dataset, "sha256": demo_hash[dataset], "episodes": len(config.get("demo_episodes", []))},
+        "time": {"wall_s": round(rows[-1]["wall_s"], 1), "ensemble_cpu_s": round(cpu, 1),
+                 "cpu_s": round(cpu / members, 1), "batched_members": members,
+                 "started": time.strftime("%Y-%m-%dT%H:%M:%S%z", time.localtime(started)),
+                 "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z")},
+        "machine": {"cpu": identity.cpu, "cores": os.cpu_count()},
+    }
+    (tmp / RUN_RECORD).write_text(json.dumps(record, indent=2) + "\n")
+    if final.exists():   # a folder without run.json: an unfinished earlier attempt
+        shutil.rmtree(final)
+    os.replace(tmp, final)
+    shutil.rmtree(work, ignore_errors=True)
+    return final
+
+
+def run_study(experiment: str, out: str | Path, *, natural: bool = False, overrides: Sequence[str] = (),
+              next_runs: int | None = None, runs: str | None = None, train: bool = True, build_demos: bool = False,
+              check_code: bool = False, progress: bool = True, command: str | None = None,
+              say=print) -> dict[str, Path]:
+    """Train the selected runs of the study (``runs`` by name, else the next ``next_runs`` pending, else all
+    pending; none with ``train=False``), then rebuild the report from every finished run. Returns the report's
+    files (see :func:`surrol_data.evaluation.study_report.write_study_report`)."""
+    from surrol_data.algos.train_batched import train_batched
+    from surrol_data.evaluation.study_report import write_study_report
+    from surrol_data.train_app import to_train_config
+
+    spec = load_spec(experiment, overrides)
+    if natural:
+        spec = replace(spec, matched=False)
+    out = Path(out).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    sets, hashes = prepare_demo_sets(spec, out, build=build_demos, progress=progress)
+    demo_md = demo_quality_markdown(demo_quality(sets), spec.matched)
+    (out / "demos.md").write_text(f"# Demonstrations\n\n{demo_md}")
+
+    done = finished_runs(out, spec)
+    if not train:
+        selected = []
+    elif runs:
+        selected = parse_runs(runs, spec)
+        already = [run_name(*r) for r in selected if r in done]
+        if already:
+            raise ValueError(f"run(s) {', '.join(already)} are finished already (in {out / 'runs'}); to redo one, "
+                             "delete its folder first")
+    else:
+        pending = [r for r in spec.run_order() if r not in done]
+        selected = pending if next_runs is None else pending[:next_runs]
+
+    if selected or check_code:
+        cfgs = _compose(spec, experiment, out, sets, selected or spec.run_order()[:1], progress)
+        train_cfgs = [to_train_config(c) for c in cfgs]
+        identity = current_identity(train_cfgs[0])
+        checks_path = out / CHECKS_FILE
+        if check_code:
+            append_check(checks_path, identity)
+            say(f"recorded this code's identity in {checks_path}: {identity.short()}")
+        check_same_code({**committed_identities(out, spec), "this checkout": identity}, read_checks(checks_path))
+        if check_code:
+            say(f"this checkout means the same code as the {len(done)} finished run(s)")
+    if selected:
+        names = [run_name(*r) for r in selected]
+        say(f"training {len(selected)} run(s) of {experiment} as one batch: {', '.join(names)} "
+            f"({len(done)} of {len(spec.run_order())} finished before)")
+        _start_batch(out, names)
+        started = time.time()
+        schedule = train_cfgs[0].schedule
+        train_batched(train_cfgs, overlap=bool(cfgs[0].batched_overlap), n_workers=int(schedule.n_envs),
+                      progress=progress, episode_epochs=tuple(spec.report_epochs))
+        for (source, seed), cfg, composed in zip(selected, train_cfgs, cfgs):
+            folder = _finish_run(out, spec, source, seed, Path(cfg.run_dir), composed, identity, hashes, started,
+                                 len(selected))
+            say(f"finished {run_name(source, seed)}: {folder}")
+        shutil.rmtree(out / ".work", ignore_errors=True)
+    if not finished_runs(out, spec):
+        return {}
+    return write_study_report([out / "runs"], out, epochs=list(spec.report_epochs), demo_table_markdown=demo_md,
+                              notes=_notes(spec, experiment),
+                              expected_runs=[run_name(*r) for r in spec.run_order()],
+                              code_checks=read_checks(out / CHECKS_FILE),
+                              command=command or f"surrol-data study {experiment} --out {out}")
+
+
+def _notes(spec: StudySpec, experiment: str) -> str:
+    natural_note = ("" if spec.matched else "\n\nThese runs use the **natural** demo sets (not matched to the paper's "
+                    "demo lengths), so the comparison mixes skill with demo length.")
+    return (f"Experiment `{experiment}`: {spec.task}, algo `{spec.algo}`, {len(spec.seeds)} seeds × "
+            f"{len(spec.sources)} demo sources, {spec.episodes} demos per source ({spec.operators} simulated "
+            f"operators × {spec.episodes // spec.operators} per skill), demo horizon {spec.horizon} steps. "
+            "The paper's human demos came from people at a dVRK console; ours come from simulated operators "
+            "driving the same device mapping, calibrated to the paper's demo lengths where matched."
+            + natural_note)

@@ -1,0 +1,159 @@
+"""The Table I study run by run: a partial study's report, run folders, code identity, the shipped demo sets."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from surrol_data.algos.ddpg import DDPGConfig
+from surrol_data.algos.fingerprint import learner_fingerprint
+from surrol_data.evaluation.code_identity import CodeIdentity, CodeIdentityError, check_same_code
+from surrol_data.evaluation.metrics import first_grasp_failed
+from surrol_data.evaluation.study_report import StudyReportError, write_study_report
+from surrol_data.study.spec import load_spec, parse_runs
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _ident(commit="a" * 40, cpu="cpu A", env="e1", learner="l1", dirty=False, config="c1"):
+    return CodeIdentity(commit=commit, dirty=dirty, cpu=cpu, env_fingerprint=env, learner_fingerprint=learner,
+                        config_fingerprint=config)
+
+
+def test_run_order_interleaves_sources_and_seeds():
+    spec = load_spec("table1")
+    order = spec.run_order()
+    assert len(order) == 12 and order[:4] == [("script", 0), ("novice", 0), ("expert", 0), ("script", 1)]
+    assert parse_runs("expert/0, novice/1", spec) == [("expert", 0), ("novice", 1)]
+    with pytest.raises(ValueError, match="not a run of study table1"):
+        parse_runs("expert/7", spec)
+    with pytest.raises(ValueError, match="SOURCE/SEED"):
+        parse_runs("expert", spec)
+
+
+def test_same_code_means_equal_fingerprints_on_one_cpu_or_one_clean_commit():
+    check_same_code({"a": _ident(), "b": _ident()})
+    # another CPU's bits differ, but the same clean commit is the same code
+    check_same_code({"a": _ident(), "b": _ident(cpu="cpu B", env="e9", learner="l9")})
+    # same CPU, different behaviour: refused whatever the commits
+    with pytest.raises(CodeIdentityError, match="behaves differently on the same CPU"):
+        check_same_code({"a": _ident(), "b": _ident(commit="b" * 40, env="e2")})
+    # another CPU at another commit: not shown to be the same ...
+    other = _ident(commit="b" * 40, cpu="cpu B", env="e9", learner="l9")
+    with pytest.raises(CodeIdentityError, match="cannot be shown to run the same code"):
+        check_same_code({"a": _ident(), "b": other})
+    # ... until a before/after check on cpu B links the old commit to cpu B's fingerprints
+    check_same_code({"a": _ident(), "b": other}, [_ident(cpu="cpu B", env="e9", learner="l9")])
+    # uncommitted changes: the commit says nothing about the code
+    with pytest.raises(CodeIdentityError, match="cannot be shown"):
+        check_same_code({"a": _ident(), "b": _ident(cpu="cpu B", env="e9", dirty=True)})
+    with pytest.raises(CodeIdentityError, match="another training config"):
+        check_same_code({"a": _ident(), "b": _ident(config="c2")})
+
+
+def test_learner_fingerprint_is_repeatable_and_sees_a_changed_loss():
+    def reward(ag, g):
+        return -(np.linalg.norm(np.asarray(ag) - np.asarray(g), axis=-1) > 0.01).astype(np.float32)
+
+    cfg = DDPGConfig(hidden_sizes=(32, 32), q_filter=False, action_l2=0.0)
+    first = learner_fingerprint(cfg, 7, 3, 5, reward, 4)
+    assert learner_fingerprint(cfg, 7, 3, 5, reward, 4) == first
+    assert learner_fingerprint(DDPGConfig(hidden_sizes=(32, 32), q_filter=False, action_l2=0.0, bc_weight=4.0),
+                               7, 3, 5, reward, 4) != first
+    assert learner_fingerprint(cfg, 7, 3, 5, reward, 2) != first          # HER relabelling ratio
+
+
+def test_first_grasp_failed_and_recovery_inputs():
+    jaw = np.array([1, -1, -1, 1, -1, -1, 1], float)
+    assert first_grasp_failed(jaw, np.array([0, 0, 0, 0, 1, 1, 0], bool)) is True
+    assert first_grasp_failed(jaw, np.array([0, 0, 1, 1, 1, 1, 0], bool)) is False
+    assert first_grasp_failed(np.ones(5), np.zeros(5, bool)) is None
+
+
+@pytest.fixture(scope="module")
+def partial_study(tmp_path_factory):
+    """table1_quick (3 sources × 2 seeds, tiny), its first two runs trained by `study --next 2`."""
+    from typer.testing import CliRunner
+
+    from surrol_data.cli import app
+
+    out = tmp_path_factory.mktemp("study") / "table1_quick"
+    result = CliRunner().invoke(app, ["study", "table1_quick", "--out", str(out), "--next", "2"])
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def test_a_partial_study_commits_run_folders_and_a_report_marked_partial(partial_study):
+    out = partial_study
+    runs = sorted(p.parent.relative_to(out / "runs").as_posix() for p in (out / "runs").rglob("run.json"))
+    assert runs == ["novice/seed0", "script/seed0"]            # the first two of the interleaved order
+    assert not (out / ".work").exists()                          # checkpoints gone once the runs finished
+    folder = out / "runs" / "script" / "seed0"
+    for name in ("metrics.csv", "metrics.jsonl", "eval_episodes.csv", "policy.pt", "config.yaml", "config.json"):
+        assert (folder / name).is_file(), name
+    record = json.loads((folder / "run.json").read_text())
+    assert record["source"] == "script" and record["seed"] == 0 and record["epochs"] == 2
+    assert len(record["code"]["env_fingerprint"]) == 64 and len(record["code"]["learner_fingerprint"]) == 64
+    assert record["demos"]["dataset"] == "NeedlePick_script" and len(record["demos"]["sha256"]) == 64
+    assert record["time"]["cpu_s"] > 0 and record["time"]["batched_members"] == 2
+    episodes = pd.read_csv(folder / "eval_episodes.csv")
+    assert sorted(episodes["epoch"].unique()) == [1, 2]          # the report epochs of table1_quick
+    assert {"final_success", "failed_grasps", "first_grasp_failed", "recovered"} <= set(episodes.columns)
+    report = (out / "report.md").read_text()
+    assert "(partial)" in report and "stands on 2 of the study's 6 runs" in report
+    assert "Missing: expert/0, script/1, novice/1, expert/1" in report
+    assert "## Recovery after a failed first grasp" in report
+
+
+def test_the_final_policy_of_a_run_evaluates(partial_study):
+    from typer.testing import CliRunner
+
+    from surrol_data.cli import app
+
+    policy = partial_study / "runs" / "novice" / "seed0" / "policy.pt"
+    result = CliRunner().invoke(app, ["eval", "--task", "NeedlePick", "--policy", str(policy), "--num-episodes", "1"])
+    assert result.exit_code == 0, result.output
+
+
+def test_a_run_whose_recorded_code_differs_is_refused(partial_study, tmp_path):
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from surrol_data.cli import app
+
+    copy = tmp_path / "study"
+    shutil.copytree(partial_study, copy)
+    record_path = copy / "runs" / "novice" / "seed0" / "run.json"
+    record = json.loads(record_path.read_text())
+    record["code"]["env_fingerprint"] = "0" * 64            # as if the env had changed between the two runs
+    record_path.write_text(json.dumps(record))
+    with pytest.raises(StudyReportError, match="behaves differently on the same CPU"):
+        write_study_report([copy / "runs"], tmp_path / "report")
+    # and the study refuses to train more runs beside them
+    result = CliRunner().invoke(app, ["study", "table1_quick", "--out", str(copy), "--report"])
+    assert result.exit_code != 0 and "behaves differently" in result.output
+
+
+@pytest.mark.parametrize("natural", [False, True], ids=["matched", "natural"])
+def test_shipped_demo_sets_validate_and_hash_as_recorded(natural):
+    from dataclasses import replace
+
+    from surrol_data.datasets.validate import validate_dataset
+    from surrol_data.study.demo_sets import MANIFEST, check_shipped, set_paths
+
+    spec = load_spec("table1")
+    spec = replace(spec, matched=not natural)
+    root = REPO / spec.shipped_demo_dir()
+    if natural and not (root / MANIFEST).is_file():
+        pytest.skip(f"the natural demo sets are not shipped yet ({root}): the study builds them before its natural runs")
+    hashes = check_shipped(root, spec)
+    manifest = json.loads((root / MANIFEST).read_text())
+    assert hashes == {name: entry["sha256"] for name, entry in manifest["sets"].items()}
+    for path in dict.fromkeys(set_paths(root, spec).values()):
+        problems = validate_dataset(path)
+        assert problems == [], [str(p) for p in problems]
