@@ -3,6 +3,7 @@
     python benchmarks/train_speed.py --seeds 0 1 2                 # train 3 seeds (sequentially), then the table
     python benchmarks/train_speed.py --runs runs/NeedlePick/ddpgbc/script/seed*   # only summarise finished runs
     python benchmarks/train_speed.py --protocol paper --epochs 3  # the batched path on the paper's 12-run study
+    python benchmarks/train_speed.py --protocol paper --study docs/results/table1   # cost of the study's finished runs
     python benchmarks/train_speed.py --protocol paper --threads-ab --no-floor --epochs 3 --cycles 5 \
         --offline-steps 50 -- experiment.eval_episodes=4      # learner at 1 thread vs widening to idle cores
 
@@ -242,6 +243,34 @@ def threads_ab(console: Console, jobs: list, args) -> None:
     console.print(table)
 
 
+def study_cost(study: Path, console: Console, cores: int) -> None:
+    """The measured cost of a study's finished runs (their run.json: CPU seconds of the batch's learner and env
+    workers, shared equally by its members, and the batch's wall time), on the step mix of the policies they
+    learned; and the whole study's projected CPU and wall time on ``cores`` cores."""
+    import json
+
+    records = sorted((json.loads(p.read_text()) for p in study.glob("runs/*/seed*/run.json")),
+                     key=lambda r: (r["seed"], r["source"]))
+    if not records:
+        sys.exit(f"no finished runs (runs/*/seed*/run.json) under {study}")
+    table = Table(title=f"Cost of one study run ({study})")
+    for col in ("run", "epochs", "batched with", "CPU h per run", "wall h of its batch", "CPU s per epoch", "CPU"):
+        table.add_column(col, justify="right" if col not in ("run", "CPU") else "left")
+    per_run = []
+    for r in records:
+        t = r["time"]
+        per_run.append(t["cpu_s"])
+        table.add_row(f"{r['source']}/{r['seed']}", str(r["epochs"]), str(t["batched_members"] - 1),
+                      f"{t['cpu_s'] / 3600:.2f}", f"{t['wall_s'] / 3600:.2f}", f"{t['cpu_s'] / r['epochs']:.1f}",
+                      r["code"]["cpu"])
+    console.print(table)
+    median = statistics.median(per_run)
+    total = 12 * median
+    console.print(f"median CPU per run {median / 3600:.2f} h; 12 runs: {total / 3600:.1f} CPU h = "
+                  f"{total / 3600 / cores:.1f} h on {cores} fully busy cores (the matched and the natural study "
+                  f"each)")
+
+
 def paper_protocol(args, console: Console) -> None:
     import resource
 
@@ -413,10 +442,16 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=REPO / "runs" / "train_speed")
     parser.add_argument("--demos", type=Path, default=REPO / "datasets" / "NeedlePick_script")
     parser.add_argument("--runs", type=Path, nargs="*", help="summarise these finished run folders instead of training")
+    parser.add_argument("--study", type=Path, help="--protocol paper: the cost of this study's finished runs "
+                                                   "(e.g. docs/results/table1) instead of training")
+    parser.add_argument("--cores", type=int, default=2, help="--study: cores for the projected study time")
     args, overrides = parser.parse_known_args()
     overrides = [o for o in overrides if o != "--"]
     args.overrides = overrides
     console = Console(width=160)
+    if args.protocol == "paper" and args.study:
+        study_cost(args.study, console, args.cores)
+        return
     if args.protocol == "paper":
         if not args.demos.exists():
             from surrol_data.collect.script_source import collect_script

@@ -12,6 +12,7 @@ from typing import Optional
 
 import typer  # noqa: E402
 from rich.console import Console  # noqa: E402
+from rich.markup import escape  # noqa: E402
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_show_locals=False,
                   help="Surgical-robot learning from demonstrations that know where they came from.")
@@ -24,13 +25,14 @@ class Source(str, Enum):
 
 
 def _fail(message: str) -> None:
-    console.print(f"[bold red]error:[/] {message}", highlight=False)
+    # the message is text, not markup: `pip install 'surrol-data[export]'` must keep its [export]
+    console.print(f"[bold red]error:[/] {escape(message)}", highlight=False)
     raise typer.Exit(code=2)
 
 
 def _note(message: str) -> None:
     """Something the user should know that is not an error (e.g. an automatic repair)."""
-    Console(stderr=True).print(f"[yellow]note:[/] {message}", highlight=False)
+    Console(stderr=True).print(f"[yellow]note:[/] {escape(message)}", highlight=False)
 
 
 # ---------------------------------------------------------------- the grammar every command shares
@@ -303,7 +305,9 @@ def assess(dataset: Path = typer.Argument(..., help="Dataset folder."),
 
     from surrol_data.datasets.guard import require_valid
     from surrol_data.datasets.reader import DatasetError
-    from surrol_data.evaluation.assess import assess_dataset, assessment_markdown, write_assessment
+    from surrol_data.evaluation.assess import (ASSESS_COLUMNS, assess_dataset, assessment_notes, assessment_rows,
+                                               assessment_title, write_assessment)
+    from surrol_data.evaluation.terminal_table import terminal_table
 
     try:
         require_valid(dataset, _note)
@@ -311,7 +315,9 @@ def assess(dataset: Path = typer.Argument(..., help="Dataset folder."),
             result = assess_dataset(dataset)
     except (DatasetError, ValueError, FileNotFoundError) as e:
         _fail(str(e))
-    console.print(Markdown(assessment_markdown(result)))
+    console.print(Markdown(f"# {assessment_title(result)}"))
+    console.print(terminal_table(console, assessment_rows(result), ASSESS_COLUMNS))  # whole headers at 80 columns
+    console.print(Markdown(assessment_notes(result)))
     if out is not None:
         files = write_assessment(result, out)
         console.print(f"wrote {', '.join(str(p) for p in files.values())}")
@@ -470,7 +476,10 @@ def view(dataset: Path = typer.Argument(..., help="Dataset folder."),
 
         with _working(f"writing {out} ..."):
             written = save_rrd(out, items, rcm_positions=rcms)
-        console.print(f"wrote {written}; open it with: rerun {out}")
+        from surrol_data.viz.open_command import rerun_open_command
+
+        console.print(f"wrote {written}; open it with: {rerun_open_command(out)}", highlight=False, markup=False,
+                      soft_wrap=True)  # no line break inside the command
     if web:
         _serve_web(items, rcms, web_port, open_browser)
 

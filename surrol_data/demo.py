@@ -86,7 +86,10 @@ def run_demo(out: str | Path | None = None, episodes: int = DEMO_EPISODES, eval_
     for name, path in (("dataset", dataset), ("BC policy", policy_path), ("report", report),
                        ("Rerun recording", recording)):
         console.print(f"  {name:<16} {path}")
-    console.print(f"  view the recording with: rerun {recording}")
+    from surrol_data.viz.open_command import rerun_open_command
+
+    console.print(f"  view the recording with: {rerun_open_command(recording)}", highlight=False,
+                  markup=False, soft_wrap=True)  # no line break inside the command
     return DemoOutputs(out, dataset, policy_path, report, recording, summaries)
 
 

@@ -15,11 +15,14 @@ at first.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import json
 import os
+import signal
 import sys
 import tempfile
+import threading
 import traceback
 from pathlib import Path
 
@@ -108,7 +111,8 @@ def _run(cfg: DictConfig) -> float:
     sweep = _in_sweep()
     run_dir = str(cfg.get("run_dir", ""))
     try:
-        rows = train(to_train_config(cfg))
+        train_cfg = to_train_config(cfg)
+        rows = train(train_cfg)
     except (FileNotFoundError, FileExistsError, ValueError, DatasetError, MissingExtra) as e:
         # bad input: say what and how to fix, no traceback; in a sweep the other jobs still run
         print(f"error: {e}", file=sys.stderr)
@@ -124,8 +128,74 @@ def _run(cfg: DictConfig) -> float:
         return float("nan")
     success = float(rows[-1]["success_rate"]) if rows else float("nan")
     if sweep:
-        _report_job("ok", f"final success {success:.2f}", run_dir)
+        _report_job("ok", f"final success {success:.2f}", run_dir)  # the sweep's table says where each run is
+    else:
+        _print_outputs(train_cfg, rows)
     return success  # the sweeper's return value: final evaluation success
+
+
+def _shown(path: Path) -> str:
+    """``path`` relative to the launch folder when it lies under it (what the user typed), else absolute."""
+    try:
+        return str(path.relative_to(Path.cwd()))
+    except ValueError:
+        return str(path)
+
+
+def _print_outputs(cfg: TrainConfig, rows: list[dict]) -> None:
+    """Where a finished single run left its outputs."""
+    run_dir = Path(cfg.run_dir)
+    last = rows[-1] if rows else {}
+    print(f"trained {cfg.env_id} for {last.get('epoch', 0)} epoch(s): final success "
+          f"{float(last.get('success_rate', float('nan'))):.2f}")
+    outputs = [("run folder", run_dir), ("policy", run_dir / "policy.pt"), ("metrics", run_dir / "metrics.csv")]
+    if (run_dir / "tb").is_dir():
+        outputs.append(("tensorboard", run_dir / "tb"))
+    for label, path in outputs:
+        print(f"  {label:<12} {_shown(path)}")
+
+
+def _from_interrupt(e: BaseException) -> bool:
+    """Ctrl-C, or an error raised while unwinding from it (e.g. by env workers that got the SIGINT too)."""
+    seen = set()
+    while e is not None and id(e) not in seen and not isinstance(e, SystemExit):
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
+
+
+@contextlib.contextmanager
+def _quiet_workers_after_ctrl_c():
+    """Ctrl-C reaches the env worker processes too, and gymnasium relays each one's KeyboardInterrupt traceback
+    as a warning while the run shuts down; after a Ctrl-C those are silenced (the resume message says it all)."""
+    import gymnasium.logger
+
+    if threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        yield  # signals go to the main thread only; a caller's own SIGINT handler is left alone
+        return
+    level = gymnasium.logger.min_level
+
+    def on_ctrl_c(signum, frame):
+        gymnasium.logger.min_level = gymnasium.logger.ERROR + 1
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, on_ctrl_c)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        gymnasium.logger.min_level = level
+
+
+def resume_command(args: list[str]) -> str:
+    """The command that continues an interrupted ``surrol-data train ARGS``: the same overrides plus resume=true."""
+    import shlex
+
+    kept = [a for a in args if a.split("=", 1)[0].lstrip("+") not in ("resume", "overwrite")]
+    return shlex.join(["surrol-data", "train", *kept, "resume=true"])
 
 
 def _print_sweep_report(path: Path) -> int:
@@ -182,9 +252,23 @@ def main(argv: list[str] | None = None) -> None:
     """Run the Hydra app on ``argv`` (Hydra overrides and flags such as ``-m``, ``--cfg job``).
 
     A sweep (``-m``) runs every job even when some fail, then prints one table of all jobs and exits 1 if any
-    failed. ``batched=true`` trains every job of the sweep in this process as one ensemble instead.
+    failed. ``batched=true`` trains every job of the sweep in this process as one ensemble instead. A single run
+    ends by printing where its outputs are; Ctrl-C ends with the command that resumes (exit status 130).
     """
     args = list(sys.argv[1:] if argv is None else argv)
+    try:
+        with _quiet_workers_after_ctrl_c():
+            _main(args, argv)
+    except BaseException as e:  # noqa: BLE001  (only Ctrl-C is handled; everything else goes on up)
+        if not _from_interrupt(e):
+            raise
+        # every finished epoch is checkpointed: say how to go on, not where Python was
+        print(f"interrupted; the finished epochs are saved. Resume with: {resume_command(args)}",
+              file=sys.stderr)
+        raise SystemExit(130) from None
+
+
+def _main(args: list[str], argv: list[str] | None) -> None:
     if "batched=true" in args:
         run_batched([a for a in args if a != "batched=true"])
         return

@@ -1,5 +1,7 @@
-"""Every ``surrol-data`` command of the README runs as written — with small sizes (at most 20 collected and 5
-evaluation episodes, training on ``experiment=smoke``, a study on ``table1_quick``), in a scratch folder, each ``bash`` block in README order.
+"""Every ``surrol-data`` command of the README and the docs pages runs as written — with small sizes (at most 20
+collected and 5 evaluation episodes, training on ``experiment=smoke``, a study on ``table1_quick``), in a scratch
+folder, each ``bash`` block in order: the README's, then each page of ``DOC_PAGES`` in turn. A command an earlier
+block already ran in the same folder (a docs page repeating the README) is not run again.
 
 Left out: the install lines (``pip install uv``, the test suite itself), the SLURM sweep (no cluster
 here; its composed config is still checked with ``--cfg job``) and ``eval --policy lerobot:DIR`` (it needs a
@@ -26,9 +28,22 @@ CAP = {"collect": 20, "eval": 5}  # --num-episodes at most (20 keeps `split --va
 _OUTPUTS = itertools.count()
 
 
-def readme_blocks() -> list[list[str]]:
-    """The ``uv run surrol-data`` commands of each ```bash block (continuation lines joined, comments cut)."""
-    text = (REPO_ROOT / "README.md").read_text()
+# The docs pages whose commands run after the README's, in this order (later pages use what earlier ones made).
+DOC_PAGES = ("index.md", "envs.md", "physics.md", "teleoperation.md", "datasets.md", "training.md", "evaluation.md",
+             "rendering.md", "benchmarks.md", "api.md")
+# Where a command may write: git-ignored folders, the study's results, the user's home. Never the repository root.
+OUTPUT_ROOTS = ("outputs/", "datasets/", "runs/", "docs/results/", "~/")
+
+
+def doc_files() -> list[Path]:
+    """README.md, then the docs pages in ``DOC_PAGES`` order."""
+    return [REPO_ROOT / "README.md", *(REPO_ROOT / "docs" / name for name in DOC_PAGES)]
+
+
+def bash_blocks(path: Path) -> list[list[str]]:
+    """The ``uv run surrol-data`` commands of each ```bash block of one Markdown file (continuation lines joined,
+    comments cut)."""
+    text = path.read_text()
     blocks = []
     for body in re.findall(r"```bash\n(.*?)```", text, flags=re.S):
         commands = []
@@ -41,8 +56,18 @@ def readme_blocks() -> list[list[str]]:
     return blocks
 
 
+def readme_blocks() -> list[list[str]]:
+    """The commands of each ```bash block of README.md."""
+    return bash_blocks(REPO_ROOT / "README.md")
+
+
+def all_blocks() -> list[list[str]]:
+    """The commands of each ```bash block of README.md, then of each docs page in ``DOC_PAGES`` order."""
+    return [block for path in doc_files() for block in bash_blocks(path)]
+
+
 def adapt(command: str, home: Path) -> list[str] | None:
-    """The README command with small sizes and placeholders filled; None if it cannot run here."""
+    """A README or docs command with small sizes and placeholders filled; None if it cannot run here."""
     args = shlex.split(command.replace("~", str(home)))
     if "hydra/launcher=slurm" in args:
         return None
@@ -54,7 +79,7 @@ def adapt(command: str, home: Path) -> list[str] | None:
         args[2] = "table1_quick"
         args += ["--override", "experiment.study.seeds=[0]"]
     if args[1] == "demo":
-        args += ["--out", "demo_out", "--num-episodes", "3", "--eval-episodes", "2"]
+        args += ["--out", f"demo_out_{next(_OUTPUTS)}", "--num-episodes", "3", "--eval-episodes", "2"]
     for i, arg in enumerate(args[:-1]):
         if arg in ("--num-episodes", "--episodes") and args[1] in CAP:
             args[i + 1] = str(min(int(args[i + 1]), CAP[args[1]]))
@@ -81,7 +106,8 @@ def test_readme_commands_run_as_written(tmp_path):
     first = tmp_path / "work"
     first.mkdir()
     failures = []
-    for n, block in enumerate(readme_blocks()):
+    done = set()
+    for n, block in enumerate(all_blocks()):
         cwd = first
         if any("collect" in c and "NeedlePick_script" in c for c in block) and (first / "datasets").exists():
             # a block that records its own datasets again starts from a fresh folder (keeping the human demos)
@@ -91,10 +117,46 @@ def test_readme_commands_run_as_written(tmp_path):
                 shutil.copytree(first / "datasets" / "NeedlePick_human", cwd / "datasets" / "NeedlePick_human")
         for command in block:
             args = adapt(command, tmp_path / "home")
-            if args is None:
+            if args is None or (cwd, tuple(args)) in done:
                 continue
+            done.add((cwd, tuple(args)))
             run = subprocess.run([str(exe), *args[1:]], cwd=cwd, env=env, capture_output=True, text=True,
                                  timeout=1200)
             if run.returncode != 0 or "Traceback" in run.stderr or "Exception ignored" in run.stderr:
                 failures.append(f"{' '.join(args)} (exit {run.returncode}): {run.stderr[-1500:]}")
     assert not failures, "\n\n".join(failures)
+
+
+def test_every_docs_page_is_listed():
+    """A new docs page must join ``DOC_PAGES`` (and so the run above), or its commands would go untested."""
+    pages = {p.name for p in (REPO_ROOT / "docs").glob("*.md")}
+    assert pages == set(DOC_PAGES), f"docs pages not in DOC_PAGES: {sorted(pages - set(DOC_PAGES))}; " \
+                                    f"listed but missing: {sorted(set(DOC_PAGES) - pages)}"
+
+
+def test_commands_are_found_and_placeholders_known():
+    """The parser finds the README's and the pages' commands, and every argument it fills in is one it knows."""
+    blocks = all_blocks()
+    commands = [c for block in blocks for c in block]
+    assert readme_blocks() and blocks[:len(readme_blocks())] == readme_blocks()
+    assert any(c.startswith("surrol-data collect") for c in commands)
+    assert len(blocks) > len(readme_blocks()), "the docs pages' commands are not found"
+    for command in commands:
+        args = adapt(command, Path("/home/x"))
+        if args is not None:   # a placeholder such as FILE or TASK left in would fail only in the slow run
+            assert not any(a.isupper() and a.isalpha() for a in args), command
+
+
+def test_commands_write_under_output_folders():
+    """What a README or docs command writes (``--out``, ``--screenshot``) goes under ``outputs/`` (git-ignored),
+    ``datasets/``, ``runs/`` or the study's ``docs/results/`` — never loose in the repository root."""
+    stray = []
+    for path in doc_files():
+        for block in bash_blocks(path):
+            for command in block:
+                args = shlex.split(command)
+                for flag, value in zip(args, args[1:]):
+                    if flag in ("--out", "--screenshot") and value not in ("OUT",) \
+                            and not value.startswith(OUTPUT_ROOTS):
+                        stray.append(f"{path.name}: {command}")
+    assert not stray, "\n".join(stray)

@@ -87,6 +87,14 @@ class BCPolicy:
 
     __call__ = act
 
+    @property
+    def torch_threads(self) -> int:
+        """Threads to roll it out with (:func:`surrol_data.evaluation.rollout.evaluate` sets them): the training
+        count, 1 by default. Its matmuls are tiny, so more threads only add synchronisation (8-15x slower on a
+        2-core machine at torch's default of one thread per core), and one thread gives the same actions
+        whatever the core count."""
+        return self.config.num_threads
+
     def save(self, path: str | Path) -> Path:
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)

@@ -1,5 +1,6 @@
 """What every command does before it trusts a dataset it was given.
 
+0. :func:`require_dataset_folder`: a path that does not exist, or is no dataset folder at all, is said to be so.
 1. :func:`ensure_finished`: a dataset left by a killed writer is repaired automatically, saying so on stderr
    (the same as ``surrol-data repair DIR``); one being written by a live process is refused.
 2. :func:`require_valid`: the cheap checks of :func:`surrol_data.datasets.validate.validate_dataset` (no env,
@@ -41,10 +42,26 @@ def ensure_finished(root: str | Path, notify: Callable[[str], None] = _stderr) -
         notify(f"  repair: {line}")
 
 
+def require_dataset_folder(root: str | Path) -> None:
+    """DatasetError unless ``root`` is a folder with a ``meta/`` folder: a path that is not there (a typo, a
+    dataset not recorded yet) is not "damaged", and ``repair`` cannot help it."""
+    root = Path(root)
+    if not root.exists():
+        raise DatasetError(f"{root} does not exist: check the path, or record a dataset there with "
+                           f"`surrol-data collect --source script --task NeedlePick --num-episodes 10 --out {root}`")
+    if not root.is_dir():
+        raise DatasetError(f"{root} is a file: give the dataset's folder (the one that holds meta/ and data/)")
+    if not (root / "meta").is_dir():
+        raise DatasetError(f"{root} is not a dataset (it has no meta/ folder): give the dataset's folder, the one "
+                           "that holds meta/ and data/")
+
+
 def require_valid(root: str | Path, notify: Callable[[str], None] = _stderr) -> None:
-    """:func:`ensure_finished`, then the cheap validation checks; DatasetError listing every problem found."""
+    """:func:`require_dataset_folder`, :func:`ensure_finished`, then the cheap validation checks; DatasetError
+    listing every problem found."""
     from surrol_data.datasets.validate import validate_dataset
 
+    require_dataset_folder(root)
     ensure_finished(root, notify)
     problems = validate_dataset(root, check_reward=False, check_lerobot=False)
     if problems:

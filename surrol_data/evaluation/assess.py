@@ -138,8 +138,17 @@ def assess_dataset(root: str | Path) -> Assessment:
     return Assessment(Path(root), episodes, benchmark, pd.DataFrame(operators), pd.DataFrame(skills))
 
 
-def assessment_markdown(result: Assessment) -> str:
-    rows = result.operators.to_dict("records") + result.skills.to_dict("records")
+def assessment_title(result: Assessment) -> str:
+    return f"Demonstration proficiency: {result.dataset.name}"
+
+
+def assessment_rows(result: Assessment) -> list[dict]:
+    """The table's rows: one per operator, then one per skill (columns :data:`ASSESS_COLUMNS`)."""
+    return result.operators.to_dict("records") + result.skills.to_dict("records")
+
+
+def assessment_notes(result: Assessment) -> str:
+    """What follows the table (markdown): the expert benchmark and how the columns are measured."""
     if result.benchmark:
         b = result.benchmark
         bench = (f"Expert benchmark (mean of the expert operators' successful episodes): "
@@ -149,10 +158,14 @@ def assessment_markdown(result: Assessment) -> str:
                  "first of two consecutive episodes that meet it.")
     else:
         bench = "No successful expert episode in this dataset: no benchmark, so no proficiency-based progression."
-    return (f"# Demonstration proficiency: {result.dataset.name}\n\n{metrics_table_markdown(rows, ASSESS_COLUMNS)}\n"
-            f"{bench}\n\nSuccess is any-step success; steps, path and smoothness are means over successful episodes; "
+    return (f"{bench}\n\nSuccess is any-step success; steps, path and smoothness are means over successful episodes; "
             "errors = failed grasps + drops; SPARC and LDLJ: higher is smoother, from the device trace where there is "
             "one.\n")
+
+
+def assessment_markdown(result: Assessment) -> str:
+    return (f"# {assessment_title(result)}\n\n{metrics_table_markdown(assessment_rows(result), ASSESS_COLUMNS)}\n"
+            f"{assessment_notes(result)}")
 
 
 def plot_assessment(path: str | Path, result: Assessment) -> Path:

@@ -3,12 +3,15 @@
 A policy is any callable ``obs_dict -> action`` (one with a ``reset()`` method, e.g. a chunking LeRobot
 policy, is reset at every episode start), or the string ``"oracle"`` for the env's scripted oracle
 (``env.unwrapped.oracle_action``). :func:`load_policy` turns a spec from the command line (``"oracle"``,
-``"lerobot:DIR"`` or a checkpoint path) into one of those.
+``"lerobot:DIR"`` or a checkpoint path) into one of those. :func:`evaluate` runs a policy that names its
+``torch_threads`` (BC and DDPG actors: 1) with that many torch threads, and restores the count afterwards.
 """
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -113,17 +116,35 @@ def evaluate(env_id: str, policy: Policy | str, episodes: int, seed: int = EVAL_
     kept: list[Trajectory] = []
     bar = tqdm(total=episodes, desc=f"eval {env_id}", disable=not progress, leave=False)
     try:
-        for s in seeds:
-            traj = rollout(env, policy, s, max_steps)
-            scores.append(trajectory_proficiency(traj))
-            if keep_trajectories:
-                kept.append(traj)
-            bar.set_postfix(success=f"{np.mean([p.success for p in scores]):.2f}", refresh=False)
-            bar.update(1)
+        with policy_threads(policy):
+            for s in seeds:
+                traj = rollout(env, policy, s, max_steps)
+                scores.append(trajectory_proficiency(traj))
+                if keep_trajectories:
+                    kept.append(traj)
+                bar.set_postfix(success=f"{np.mean([p.success for p in scores]):.2f}", refresh=False)
+                bar.update(1)
     finally:
         bar.close()
         env.close()
     return EvalResult(env_id=env_id, seeds=seeds, proficiency=scores, summary=summarize(scores), trajectories=kept)
+
+
+@contextmanager
+def policy_threads(policy: Policy | str):
+    """Run the block with torch set to the policy's ``torch_threads`` (a BC/DDPG actor: 1), then restore the
+    caller's count; a policy without that attribute (the oracle, a LeRobot policy) runs as it is."""
+    wanted = getattr(policy, "torch_threads", None)
+    torch = sys.modules.get("torch")  # a policy that names threads has imported torch already
+    if wanted is None or torch is None or torch.get_num_threads() == wanted:
+        yield
+        return
+    previous = torch.get_num_threads()
+    torch.set_num_threads(int(wanted))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)
 
 
 def _bind(env: gym.Env, policy: Policy | str) -> Policy:
