@@ -224,6 +224,11 @@ def test_train_writes_curves_checkpoints_and_a_loadable_policy(tmp_path, reach_d
     other = TrainConfig(**{**cfg.__dict__, "resume": True, "seed": 5})
     with pytest.raises(ValueError, match="another configuration"):
         train(other)
+    # a run begun with overwrite=true resumes with resume=true alone (how it was launched is not its config)
+    again = TrainConfig(**{**cfg.__dict__, "overwrite": True, "tensorboard": False})
+    train(again)
+    assert _comparable(train(TrainConfig(**{**again.__dict__, "overwrite": False, "resume": True}))) == \
+        _comparable(read_metrics(cfg.run_dir))
 
 
 @pytest.mark.slow  # three short runs in subprocesses: ~30 s on a quiet 2-core machine

@@ -186,6 +186,9 @@ def evaluate_policy(env: gym.Env, policy, episodes: int) -> dict:
             "steps_to_complete": s["mean_steps_to_success"], "economy_of_motion_cm": s["mean_path_length_cm"]}
 
 
+# How a run was launched, not what it computes: a resume may differ in them (a run begun with overwrite=true is
+# resumed with resume=true alone)
+LAUNCH_SETTINGS = ("resume", "overwrite", "progress")
 RUN_OUTPUTS = ("checkpoint.pt", "metrics.jsonl", "metrics.csv", "policy.pt", "config.json", "process.json", "tb")
 
 
@@ -236,8 +239,8 @@ def train(cfg: TrainConfig) -> list[dict]:
         if ckpt.get("format") != CHECKPOINT_FORMAT:
             raise ValueError(f"{ckpt_path} is not a training checkpoint (format {ckpt.get('format')!r})")
         saved = json.loads(ckpt["config"])
-        if {k: v for k, v in saved.items() if k not in ("resume", "progress")} != \
-                {k: v for k, v in _config_json(cfg).items() if k not in ("resume", "progress")}:
+        if {k: v for k, v in saved.items() if k not in LAUNCH_SETTINGS} != \
+                {k: v for k, v in _config_json(cfg).items() if k not in LAUNCH_SETTINGS}:
             raise ValueError(f"{ckpt_path} was written by a run with another configuration; resume with the same "
                              f"overrides, or start a new run folder. Saved: {saved}")
         learner.load_state_dict(ckpt["learner"])

@@ -45,8 +45,8 @@ from surrol_data.algos.ensemble import EnsembleDDPG
 from surrol_data.algos.env_pool import EnvPool
 from surrol_data.algos.learner_threads import LearnerThreads
 from surrol_data.algos.replay import EpisodeReplay, rng_from_tensor, rng_state_tensor
-from surrol_data.algos.train import (CHECKPOINT_FORMAT, EVAL_SEED_BASE, TRAIN_SEED_STRIDE, RunLog, TrainConfig,
-                                     _check, _config_json, _write_json, claim_run_dir, make_env)
+from surrol_data.algos.train import (CHECKPOINT_FORMAT, EVAL_SEED_BASE, LAUNCH_SETTINGS, TRAIN_SEED_STRIDE, RunLog,
+                                     TrainConfig, _check, _config_json, _write_json, claim_run_dir, make_env)
 from surrol_data.datasets.trajectory import Trajectory
 from surrol_data.evaluation.metrics import first_grasp_failed, summarize, trajectory_proficiency
 
@@ -442,7 +442,7 @@ def _resume(members: list[_Member], learner: EnsembleDDPG) -> bool:
     for i, (m, options) in enumerate(zip(members, found)):
         ckpt = _load(options[epoch])
         saved = json.loads(ckpt["config"])
-        ignore = ("resume", "progress")
+        ignore = LAUNCH_SETTINGS
         if {k: v for k, v in saved.items() if k not in ignore} != \
                 {k: v for k, v in _config_json(m.cfg).items() if k not in ignore}:
             raise ValueError(f"{options[epoch]} was written by a run with another configuration; resume with the "
