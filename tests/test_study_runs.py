@@ -11,8 +11,8 @@ import pytest
 
 from surrol_data.algos.ddpg import DDPGConfig
 from surrol_data.algos.fingerprint import learner_fingerprint
+from surrol_data.datasets.metrics import first_grasp_failed
 from surrol_data.evaluation.code_identity import CodeIdentity, CodeIdentityError, check_same_code
-from surrol_data.evaluation.metrics import first_grasp_failed
 from surrol_data.evaluation.study_report import StudyReportError, write_study_report
 from surrol_data.study.spec import load_spec, parse_runs
 
@@ -157,3 +157,29 @@ def test_shipped_demo_sets_validate_and_hash_as_recorded(natural):
     for path in dict.fromkeys(set_paths(root, spec).values()):
         problems = validate_dataset(path)
         assert problems == [], [str(p) for p in problems]
+
+
+def test_a_batch_split_resumes_its_runs_and_shares_their_cpu_by_batch_size(tmp_path):
+    """Runs of a killed batch of 3, resumed as a batch of 2: their checkpoints are kept, each epoch's ensemble CPU
+    is divided by that epoch's batch size; a batch whose runs lack checkpoints starts afresh."""
+    from surrol_data.study.runs import _cpu_share, _start_batch
+
+    work = tmp_path / ".work"
+    names = ["script/0", "novice/0", "expert/0"]
+    for name in names:
+        folder = work / name.split("/")[0] / f"seed{name.split('/')[1]}"
+        folder.mkdir(parents=True)
+        (folder / "checkpoint.pt").write_bytes(b"x")
+        (folder / "metrics.jsonl").write_text("".join(json.dumps({"epoch": e}) + "\n" for e in range(5)))
+    (work / "batch.json").write_text(json.dumps(names))
+    _start_batch(tmp_path, names[:2])
+    history = json.loads((work / "script" / "seed0" / "batches.json").read_text())
+    assert history == [{"from_epoch": 0, "members": 3}, {"from_epoch": 5, "members": 2}]
+    assert (work / "novice" / "seed0" / "checkpoint.pt").is_file()      # kept: the pair resumes
+    rows = [{"epoch": e, "time_cpu_learner_s": 6.0, "time_cpu_envs_s": 6.0} for e in range(7)]
+    assert _cpu_share(rows, history) == pytest.approx(5 * 12 / 3 + 2 * 12 / 2)
+    assert _cpu_share([{**rows[0], "batched_members": 4}], history) == pytest.approx(3.0)
+    # a new batch with a run that has no checkpoint starts every one of its runs afresh
+    _start_batch(tmp_path, ["expert/0", "script/1"])
+    assert not (work / "expert" / "seed0" / "checkpoint.pt").exists()
+    assert json.loads((work / "expert" / "seed0" / "batches.json").read_text()) == [{"from_epoch": 0, "members": 2}]

@@ -202,6 +202,7 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
             row["time_cpu_envs_s"] = round(used["envs"], 3)
             m.state["wall_s"] += elapsed  # the ensemble's epoch: every member waited for all of it
             row["wall_s"] = round(m.state["wall_s"], 3)
+            row["batched_members"] = len(members)   # the epoch's CPU seconds are the whole ensemble's
             m.log.append(row)
             if m.state["epoch"] in episode_epochs:   # per-episode records at the epochs a report reads closely
                 _write_episode_rows(m.run_dir, m.state["epoch"], episode_rows[i])

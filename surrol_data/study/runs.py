@@ -92,18 +92,48 @@ def _compose(spec: StudySpec, experiment: str, out: Path, sets: dict[str, Path],
     return cfgs
 
 
+def _last_epoch(work: Path) -> int | None:
+    path = work / "metrics.jsonl"
+    if not (work / "checkpoint.pt").is_file() or not path.is_file():
+        return None
+    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    return int(rows[-1]["epoch"]) if rows else None
+
+
 def _start_batch(out: Path, names: list[str]) -> None:
-    """A kill leaves the batch's checkpoints; a later batch of other runs cannot resume them (an ensemble resumes
-    whole), so its runs start afresh."""
+    """Before training ``names`` as one batch. A kill leaves a batch's checkpoints: the same batch again resumes
+    them. A batch of other runs resumes those of its runs that all have checkpoints (every member's checkpoint is
+    a single run's, so an ensemble can resume a subset of an earlier one: e.g. a batch split so that some of its
+    runs finish sooner); otherwise its runs start afresh. Each run's ``batches.json`` records from which epoch it
+    trained in a batch of how many runs (its CPU time is its share of each batch's)."""
     work = out / ".work"
     record = work / "batch.json"
     before = json.loads(record.read_text()) if record.is_file() else []
-    if before != names:
-        for name in names:
-            source, seed = name.split("/")
-            shutil.rmtree(work / source / f"seed{seed}", ignore_errors=True)
+    folders = {name: work / name.split("/")[0] / f"seed{name.split('/')[1]}" for name in names}
+    resumable = before == names or all(_last_epoch(f) is not None for f in folders.values())
+    for name, folder in folders.items():
+        if not resumable:
+            shutil.rmtree(folder, ignore_errors=True)
+        history_path = folder / "batches.json"
+        history = json.loads(history_path.read_text()) if resumable and history_path.is_file() else []
+        if not history and resumable and before and _last_epoch(folder) is not None:
+            history = [{"from_epoch": 0, "members": len(before)}]   # trained before batches were recorded
+        start = (_last_epoch(folder) + 1) if resumable and _last_epoch(folder) is not None else 0
+        if not history or history[-1]["members"] != len(names):
+            history.append({"from_epoch": start, "members": len(names)})
+        folder.mkdir(parents=True, exist_ok=True)
+        history_path.write_text(json.dumps(history))
     work.mkdir(parents=True, exist_ok=True)
     record.write_text(json.dumps(names))
+
+
+def _cpu_share(rows: list[dict], history: list[dict]) -> float:
+    """The run's share of its batches' CPU seconds: each epoch's ensemble CPU over that epoch's batch size."""
+    def members(epoch: int) -> int:
+        return next((h["members"] for h in reversed(history) if h["from_epoch"] <= epoch), history[0]["members"])
+
+    return sum((r.get("time_cpu_learner_s", 0.0) + r.get("time_cpu_envs_s", 0.0))
+               / r.get("batched_members", members(int(r["epoch"]))) for r in rows)
 
 
 def _finish_run(out: Path, spec: StudySpec, source: str, seed: int, work: Path, composed, identity: CodeIdentity,
@@ -125,14 +155,16 @@ def _finish_run(out: Path, spec: StudySpec, source: str, seed: int, work: Path, 
     (tmp / "config.json").write_text(json.dumps(config, indent=2))
     (tmp / "config.yaml").write_text(OmegaConf.to_yaml(composed, resolve=True))
     rows = [json.loads(line) for line in (work / "metrics.jsonl").read_text().splitlines() if line.strip()]
-    cpu = sum(r.get("time_cpu_learner_s", 0.0) + r.get("time_cpu_envs_s", 0.0) for r in rows)
+    history = json.loads((work / "batches.json").read_text()) if (work / "batches.json").is_file() else \
+        [{"from_epoch": 0, "members": members}]
+    cpu = _cpu_share(rows, history)
     dataset = Path(config["demos"]["path"]).name
     record = {
         "study": spec.experiment, "source": source, "seed": seed, "task": spec.task, "algo": spec.algo,
         "epochs": max(int(r["epoch"]) for r in rows), "code": identity.as_dict(), "versions": versions(),
         "demos": {"dataset": dataset, "sha256": demo_hash[dataset], "episodes": len(config.get("demo_episodes", []))},
-        "time": {"wall_s": round(rows[-1]["wall_s"], 1), "ensemble_cpu_s": round(cpu, 1),
-                 "cpu_s": round(cpu / members, 1), "batched_members": members,
+        "time": {"wall_s": round(rows[-1]["wall_s"], 1), "cpu_s": round(cpu, 1), "batched_members": members,
+                 "batches": history,
                  "started": time.strftime("%Y-%m-%dT%H:%M:%S%z", time.localtime(started)),
                  "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z")},
         "machine": {"cpu": identity.cpu, "cores": os.cpu_count()},
