@@ -67,6 +67,22 @@ def test_learner_fingerprint_is_repeatable_and_sees_a_changed_loss():
     assert learner_fingerprint(cfg, 7, 3, 5, reward, 2) != first          # HER relabelling ratio
 
 
+def test_fingerprints_are_the_same_in_every_process():
+    """A fingerprint must not hash memory addresses (numpy holds None and other objects as pointers)."""
+    import subprocess
+    import sys
+
+    code = ("import hashlib, numpy as np; from surrol_data.envs.fingerprint import feed; h = hashlib.sha256(); "
+            "feed(h, {'noise': np.arange(3.0), 'replace': None, 'random': [None, 1]}); print(h.hexdigest())")
+    digests = {subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+               for _ in range(2)}
+    assert len(digests) == 1
+    from surrol_data.envs.fingerprint import feed
+
+    with pytest.raises(TypeError, match="cannot fingerprint"):
+        feed(__import__("hashlib").sha256(), object())
+
+
 def test_first_grasp_failed_and_recovery_inputs():
     jaw = np.array([1, -1, -1, 1, -1, -1, 1], float)
     assert first_grasp_failed(jaw, np.array([0, 0, 0, 0, 1, 1, 0], bool)) is True

@@ -15,8 +15,12 @@ import numpy as np
 
 
 def feed(h, value) -> None:
-    """Add ``value`` (nested dicts, lists, arrays, scalars) to the hash ``h``: keys, dtypes, shapes and bytes."""
-    if isinstance(value, dict):
+    """Add ``value`` (nested dicts, lists, arrays, scalars, None) to the hash ``h``: keys, dtypes, shapes and bytes.
+    Anything numpy holds as Python objects is refused: its bytes would be memory addresses, different in every
+    process."""
+    if value is None:
+        h.update(b"None")
+    elif isinstance(value, dict):
         for key in sorted(value):
             h.update(str(key).encode())
             feed(h, value[key])
@@ -25,6 +29,9 @@ def feed(h, value) -> None:
             feed(h, v)
     else:
         a = np.asarray(value)
+        if a.dtype == object:
+            raise TypeError(f"cannot fingerprint {type(value).__name__} values (numpy holds them as objects); "
+                            "convert them to numbers first")
         h.update(str(a.dtype).encode() + str(a.shape).encode())
         h.update(np.ascontiguousarray(a).tobytes())
 
