@@ -14,7 +14,7 @@ counted), datasets that open, automatic repairs, device traces present (haptic p
 ``validate`` afterwards. A kill before the first episode leaves either no folder or one that a retry replaces:
 that counts as "opens".
 
-Part 2 — validation fuzz: every class of :mod:`surrol_data.datasets.corruptions` applied to a copy of a good
+Part 2 — validation fuzz: every class of :mod:`surrol_data.collect.corruptions` applied to a copy of a good
 dataset (camera video, device traces, two data files); ``validate_dataset`` must detect each (never raise,
 never pass it), and the commands' own guard (:func:`surrol_data.datasets.guard.require_valid`) must refuse or
 repair it.
@@ -89,7 +89,7 @@ def _child(args: list[str], report_fd: int, log: Path) -> None:
         import typer
 
         from surrol_data.cli import app
-        from surrol_data.collect.recorder import DatasetRecorder
+        from surrol_data.datasets.recorder import DatasetRecorder
 
         original = DatasetRecorder.record
 
@@ -176,7 +176,7 @@ def _check_dataset(root: Path, expected: int, haptic: bool) -> dict:
     """Open ``root`` as our commands do; what was lost, whether it opens, repaired, traces, valid."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from surrol_data.collect.recorder import _holds_no_episode
+    from surrol_data.datasets.writer import _holds_no_episode
     from surrol_data.datasets.guard import ensure_finished
     from surrol_data.datasets.reader import DatasetReader
     from surrol_data.datasets.validate import validate_dataset
@@ -300,7 +300,7 @@ def summarize_kills(runs: list[Trial], bases: dict) -> Table:
 
 
 def fuzz_campaign(work: Path, console: Console) -> tuple[Table, dict]:
-    from surrol_data.datasets.corruptions import CLASSES, base_dataset, damaged_copy
+    from surrol_data.collect.corruptions import CLASSES, base_dataset, damaged_copy
     from surrol_data.datasets.guard import require_valid
     from surrol_data.datasets.reader import DatasetError
     from surrol_data.datasets.validate import validate_dataset
@@ -335,7 +335,7 @@ def fuzz_campaign(work: Path, console: Console) -> tuple[Table, dict]:
         counts["refused"] += refused
         if not refused:
             console.print(f"  commands would accept: {name}")
-    table = Table(title=f"Validation fuzz: {len(CLASSES)} damage classes (surrol_data.datasets.corruptions)")
+    table = Table(title=f"Validation fuzz: {len(CLASSES)} damage classes (surrol_data.collect.corruptions)")
     for col in ("classes", "detected", "crashed", "silently passed", "refused/repaired by commands",
                 "median validate time"):
         table.add_column(col, justify="right")

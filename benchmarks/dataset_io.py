@@ -90,7 +90,7 @@ def write_plain_lerobot(root: Path, episodes: list[Trajectory]) -> float:
 
 
 def write_recorder(root: Path, episodes: list[Trajectory]) -> float:
-    from surrol_data.collect.recorder import DatasetRecorder
+    from surrol_data.datasets.recorder import DatasetRecorder
 
     t0 = time.perf_counter()
     with DatasetRecorder(root, features=frame_features(OBS_DIM, GOAL_DIM, ACT_DIM, 1), task="NeedlePick",

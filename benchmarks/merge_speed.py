@@ -52,7 +52,7 @@ def re_record_lerobot_decode(inputs: list[Path], out: Path) -> None:
     backend), then re-recorded. Reproduced here by giving the reader that decoder for the run."""
     import numpy as np
 
-    from surrol_data.collect.recorder import VIDEO_BACKEND, _lerobot_dataset_class
+    from surrol_data.datasets.writer import VIDEO_BACKEND, _lerobot_dataset_class
     from surrol_data.datasets.hub_offline import hub_offline
     from surrol_data.datasets.reader import DatasetReader
 

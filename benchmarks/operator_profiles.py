@@ -20,8 +20,8 @@ from rich.table import Table
 import surrol_data.envs  # noqa: F401  (registers the ids)
 from surrol_data.collect.mapping import ActionMapper, MappingSettings
 from surrol_data.collect.operator import SimulatedOperator
+from surrol_data.datasets.metrics import trajectory_proficiency
 from surrol_data.datasets.trajectory import TrajectoryBuilder
-from surrol_data.evaluation.metrics import trajectory_proficiency
 from surrol_data.evaluation.rollout import ORACLE, rollout
 
 FIRST_SEED = 1000

@@ -25,10 +25,10 @@ from rich.console import Console
 from rich.progress import track
 from rich.table import Table
 
-import surrol_data.envs
 from surrol_data.collect.haptic_source import _human_horizon, collect_haptic
+from surrol_data.datasets.metrics import trajectory_proficiency
 from surrol_data.datasets.reader import DatasetReader
-from surrol_data.evaluation.metrics import trajectory_proficiency
+import surrol_data.envs
 from surrol_data.evaluation.rollout import ORACLE, rollout
 
 SKILLS = ("expert", "novice")

@@ -272,6 +272,7 @@ def evaluate_cmd(task: str = typer.Option(..., help="Task name, e.g. NeedlePick.
 
     episodes = _count(num_episodes, old_episodes, default=20)
 
+    from surrol_data.algos.policies import load_policy
     from surrol_data.demo import print_summary
     from surrol_data.envs import env_id
     from surrol_data.evaluation.rollout import EVAL_SEED_BASE, evaluate
@@ -284,7 +285,7 @@ def evaluate_cmd(task: str = typer.Option(..., help="Task name, e.g. NeedlePick.
     records, summaries = [], {}
     for spec in specs:
         try:
-            result = evaluate(env_id(task), spec, episodes, seed=first, max_steps=max_steps)
+            result = evaluate(env_id(task), load_policy(spec), episodes, seed=first, max_steps=max_steps)
         except (ValueError, FileNotFoundError) as e:
             _fail(str(e))
         summaries[f"{spec} on {task}"] = result.summary
@@ -574,7 +575,7 @@ def validate(dataset: Path = typer.Argument(..., help="Dataset folder."),
 @app.command()
 def repair(dataset: Path = typer.Argument(..., help="Dataset folder left by a killed recording, or damaged.")):
     """Keep every intact episode of a killed or damaged dataset; say what was dropped and why (files moved aside)."""
-    from surrol_data.collect.repair import repair as repair_dataset
+    from surrol_data.datasets.repair import repair as repair_dataset
     from surrol_data.datasets.reader import DatasetError
 
     try:

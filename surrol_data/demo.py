@@ -94,7 +94,7 @@ def run_demo(out: str | Path | None = None, episodes: int = DEMO_EPISODES, eval_
 
 
 def _demo_summary(demos) -> dict:
-    from surrol_data.evaluation.metrics import summarize, trajectory_proficiency
+    from surrol_data.datasets.metrics import summarize, trajectory_proficiency
 
     return summarize([trajectory_proficiency(t) for t in demos])
 

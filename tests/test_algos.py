@@ -201,7 +201,7 @@ def _comparable(rows):
 
 
 def test_train_writes_curves_checkpoints_and_a_loadable_policy(tmp_path, reach_demos):
-    from surrol_data.evaluation.rollout import load_policy
+    from surrol_data.algos.policies import load_policy
 
     cfg = TrainConfig(env_id=REACH, run_dir=str(tmp_path / "run"), learner="ddpg",
                       learner_params={"hidden_sizes": (32, 32)},

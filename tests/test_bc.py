@@ -9,7 +9,8 @@ import torch
 from surrol_data.algos.bc import BCConfig, BCPolicy, demo_arrays, train_bc
 from surrol_data.algos.networks import DeterministicActor, mlp
 from surrol_data.algos.normalizer import Normalizer
-from surrol_data.evaluation.rollout import evaluate, load_policy, rollout
+from surrol_data.algos.policies import load_policy
+from surrol_data.evaluation.rollout import evaluate, rollout
 
 REACH = "SurRoL/NeedleReach-v0"
 PICK = "SurRoL/NeedlePick-v0"
@@ -163,6 +164,13 @@ def test_rollout_rejects_bad_policies(reach_env):
         rollout(reach_env, "random", seed=0)
 
 
+def test_evaluate_takes_a_policy_and_load_policy_reads_the_spec(tmp_path):
+    # evaluation never imports the learners: a checkpoint path is loaded by algos.policies.load_policy first
+    with pytest.raises(ValueError, match="load_policy"):
+        evaluate(REACH, str(tmp_path / "bc.pt"), episodes=1, progress=False)
+    assert load_policy("oracle") == "oracle"
+
+
 def test_oracle_evaluates_near_perfectly_on_needle_reach():
     result = evaluate(REACH, "oracle", episodes=20, seed=0, progress=False)
     assert result.seeds == list(range(20)) and len(result.proficiency) == 20
@@ -193,5 +201,5 @@ def test_bc_on_oracle_demos_solves_needle_reach(reach_env, tmp_path):
     policy = train_bc(obs, goal, action, BCConfig(), episode_index=episode, progress=False)
     path = policy.save(tmp_path / "bc_reach.pt")
     # Unseen seeds, and through a checkpoint path, as the CLI would do it.
-    result = evaluate(REACH, str(path), episodes=20, seed=1000, progress=False)
+    result = evaluate(REACH, load_policy(str(path)), episodes=20, seed=1000, progress=False)
     assert result.summary["success_rate"] >= 0.7, result.summary

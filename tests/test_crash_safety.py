@@ -12,11 +12,11 @@ from pathlib import Path
 import pyarrow.parquet as pq
 import pytest
 
-from surrol_data.collect.recorder import DatasetRecorder
-from surrol_data.collect.repair import repair
-from surrol_data.datasets import corruptions
+from surrol_data.collect import corruptions
 from surrol_data.datasets.guard import require_valid
 from surrol_data.datasets.reader import DatasetError, DatasetReader
+from surrol_data.datasets.recorder import DatasetRecorder
+from surrol_data.datasets.repair import repair
 from surrol_data.datasets.validate import validate_dataset
 
 REPO_ROOT = Path(__file__).resolve().parents[1]

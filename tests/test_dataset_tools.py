@@ -46,7 +46,7 @@ def rollouts(n: int, first_seed: int = 0):
 
 
 def make_dataset(root: Path, labels=LABELS, first_seed: int = 0) -> tuple[Path, list]:
-    from surrol_data.collect.recorder import DatasetRecorder
+    from surrol_data.datasets.recorder import DatasetRecorder
     from surrol_data.collect.script_source import features_for
 
     import gymnasium as gym
@@ -167,7 +167,7 @@ def test_merge_keeps_every_provenance_column(dataset, tmp_path):
 
 
 def test_merge_refuses_incompatible_inputs(dataset, tmp_path):
-    from surrol_data.collect.recorder import DatasetRecorder
+    from surrol_data.datasets.recorder import DatasetRecorder
     from surrol_data.datasets.merge import merge_datasets
     from surrol_data.datasets.schema import frame_features
 
@@ -225,7 +225,7 @@ def test_recorder_checkpoints_without_resume_and_stays_valid(dataset, tmp_path, 
     and what it writes must pass every validate check, LeRobotDataset's own reading included."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from surrol_data.collect.recorder import DatasetRecorder
+    from surrol_data.datasets.recorder import DatasetRecorder
     from surrol_data.datasets.validate import validate_dataset
 
     root, trajs = dataset

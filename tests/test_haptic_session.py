@@ -162,7 +162,7 @@ def test_sigkill_loses_at_most_the_episode_in_progress(tmp_path):
     finally:
         if proc.poll() is None:
             proc.kill()
-    from surrol_data.collect.recorder import repair
+    from surrol_data.datasets.repair import repair
 
     repair(out)
     reader = DatasetReader(out)

@@ -10,7 +10,7 @@ def test_imports_change_no_environment_variable():
     code = (
         "import json, os\n"
         "before = dict(os.environ)\n"
-        "import surrol_data.envs, surrol_data.cli, surrol_data.collect.recorder, surrol_data.datasets.validate\n"
+        "import surrol_data.envs, surrol_data.cli, surrol_data.datasets.recorder, surrol_data.datasets.validate\n"
         "changed = sorted(k for k in set(before) | set(os.environ) if before.get(k) != os.environ.get(k))\n"
         "print(json.dumps(changed))\n"
     )

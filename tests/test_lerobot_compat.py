@@ -38,7 +38,7 @@ def test_untested_version_warns_once(monkeypatch):
 def test_checkpoints_take_the_fast_path_and_keep_every_episode(tmp_path, monkeypatch):
     """With the checked lerobot a checkpoint never falls back to finalize + resume, and the files it leaves
     read back exactly."""
-    from surrol_data.collect.recorder import DatasetRecorder
+    from surrol_data.datasets.recorder import DatasetRecorder
 
     LeRobotDataset = lerobot_compat.lerobot_dataset_class()
 

@@ -31,7 +31,7 @@ def _save_act(base, camera: tuple[int, int] | None = None):
     from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
     from lerobot.policies import ACTConfig, make_policy, make_pre_post_processors
 
-    from surrol_data.collect.recorder import DatasetRecorder
+    from surrol_data.datasets.recorder import DatasetRecorder
     from surrol_data.datasets.hub_offline import hub_offline
     from surrol_data.datasets.schema import frame_features
 
@@ -63,7 +63,8 @@ def test_lerobot_policy_rolls_out_in_our_env_and_restarts_its_chunk_each_episode
 
     import surrol_data.envs  # noqa: F401
     from surrol_data.evaluation.lerobot_policy import LerobotPolicy
-    from surrol_data.evaluation.rollout import evaluate, load_policy, rollout
+    from surrol_data.algos.policies import load_policy
+    from surrol_data.evaluation.rollout import evaluate, rollout
 
     policy = load_policy(f"lerobot:{act_dir}")  # the lerobot-train output folder: its last checkpoint
     assert isinstance(policy, LerobotPolicy) and policy.path.name == "pretrained_model"
@@ -103,7 +104,8 @@ def test_lerobot_policy_refuses_a_task_of_other_dimensions(act_dir):
 
 
 def test_a_policy_trained_on_the_endoscope_video_gets_the_camera_at_its_size(tmp_path):
-    from surrol_data.evaluation.rollout import evaluate, load_policy
+    from surrol_data.algos.policies import load_policy
+    from surrol_data.evaluation.rollout import evaluate
 
     policy = load_policy(f"lerobot:{_save_act(tmp_path, camera=(24, 32))}")
     assert policy.input_shapes["observation.images.endoscope"] == (3, 24, 32)

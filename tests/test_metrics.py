@@ -8,9 +8,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from surrol_data.datasets.metrics import log_dimensionless_jerk, path_length_m, summarize, trajectory_proficiency
 from surrol_data.datasets.trajectory import Trajectory
 from surrol_data.envs.units import CONTROL_PERIOD_S
-from surrol_data.evaluation.metrics import log_dimensionless_jerk, path_length_m, summarize, trajectory_proficiency
 
 
 def make_traj(tip: np.ndarray, success=None, jaw=None) -> Trajectory:
@@ -120,7 +120,7 @@ def test_path_length_is_translation_invariant_and_at_least_the_chord(path, shift
 
 
 # ------------------------------------------------------------------ metrics added for the Table I study
-from surrol_data.evaluation.metrics import (  # noqa: E402
+from surrol_data.datasets.metrics import (  # noqa: E402
     DeviceTrace, angular_economy_rad, bootstrap_ci, estimate, idle_time_s, proficiency, sparc)
 
 

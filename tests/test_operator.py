@@ -12,8 +12,8 @@ from surrol_data.collect.mapping import ActionMapper, MappingSettings
 from surrol_data.collect.operator import PROFILES, SimulatedOperator, operator_params
 from surrol_data.collect.operator.motor import Hand, MotorNoise, fitts_duration, minimum_jerk
 from surrol_data.collect.operator.operator import DEVICE_HALF_RANGE, episode_key
+from surrol_data.datasets.metrics import Proficiency, trajectory_proficiency
 from surrol_data.datasets.trajectory import Trajectory, TrajectoryBuilder
-from surrol_data.evaluation.metrics import Proficiency, trajectory_proficiency
 from surrol_data.evaluation.rollout import ORACLE, rollout
 
 HORIZON = 150   # the paper's human recordings are 150 steps (30 s)

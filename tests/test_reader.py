@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 
 from surrol_data.datasets.info import render_info_text, summarize
+from surrol_data.datasets.metrics import trajectory_proficiency
 from surrol_data.datasets.reader import DatasetError, DatasetReader
 from surrol_data.datasets.schema import PROVENANCE_COLUMNS, frame_features
 from surrol_data.datasets.trajectory import Trajectory
-from surrol_data.evaluation.metrics import trajectory_proficiency
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 OBS, GOAL, ARMS = 11, 6, 2
@@ -50,7 +50,7 @@ def make_traj(seed: int, T: int) -> Trajectory:
 
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
-    from surrol_data.collect.recorder import DatasetRecorder
+    from surrol_data.datasets.recorder import DatasetRecorder
 
     root = tmp_path_factory.mktemp("reader") / "bimanual"
     trajs = [make_traj(i, T) for i, T in enumerate(LENGTHS)]

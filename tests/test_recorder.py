@@ -13,8 +13,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from surrol_data.collect.recorder import DatasetRecorder, repair
+from surrol_data.datasets.metrics import trajectory_proficiency
 from surrol_data.datasets.reader import DatasetError, DatasetReader, unreadable_parquet_files
+from surrol_data.datasets.recorder import DatasetRecorder
+from surrol_data.datasets.repair import repair
 from surrol_data.datasets.schema import (
     PROVENANCE_COLUMNS,
     SCHEMA_VERSION,
@@ -23,7 +25,6 @@ from surrol_data.datasets.schema import (
     normalize_provenance,
 )
 from surrol_data.datasets.trajectory import Trajectory
-from surrol_data.evaluation.metrics import trajectory_proficiency
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 OBS, GOAL = 7, 3
@@ -260,7 +261,7 @@ CHILD = textwrap.dedent("""
     import sys, time
     sys.path.insert(0, {tests!r})
     from test_recorder import make_traj, provenance, RECORDER_ARGS, OBS, GOAL
-    from surrol_data.collect.recorder import DatasetRecorder
+    from surrol_data.datasets.recorder import DatasetRecorder
     from surrol_data.datasets.schema import frame_features
 
     with DatasetRecorder({root!r}, features=frame_features(OBS, GOAL, 5, 1), checkpoint_every={every},

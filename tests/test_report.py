@@ -8,8 +8,8 @@ import struct
 import numpy as np
 import pytest
 
+from surrol_data.datasets.metrics import summarize, trajectory_proficiency
 from surrol_data.datasets.trajectory import Trajectory
-from surrol_data.evaluation.metrics import summarize, trajectory_proficiency
 from surrol_data.evaluation.report import (Column, SUMMARY_COLUMNS, metrics_table_markdown, plot_comparison,
                                            summary_rows, write_report)
 

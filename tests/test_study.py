@@ -13,7 +13,7 @@ import surrol_data.envs  # noqa: F401  (registers the ids)
 from surrol_data.collect.haptic_source import collect_haptic
 from surrol_data.collect.operator import MATCHED_PROFILES, PROFILES, operator_params
 from surrol_data.collect.script_source import SCRIPT_SPEED_MATCHED, PacedOracle
-from surrol_data.evaluation.metrics import trajectory_proficiency
+from surrol_data.datasets.metrics import trajectory_proficiency
 from surrol_data.evaluation.rollout import ORACLE, rollout
 from surrol_data.study import StudySpec, load_spec
 
@@ -125,7 +125,7 @@ def test_table1_quick_pipeline_writes_the_report(tmp_path):
 def test_grasp_events_reach_the_dataset_and_the_metrics(tmp_path):
     """The env's grasp state and drops go from the step info into the recorded frames, so failed grasps and drops
     are counted from a dataset (not nan); a dataset recorded without them still reads, with those counts unknown."""
-    from surrol_data.collect.recorder import DatasetRecorder
+    from surrol_data.datasets.recorder import DatasetRecorder
     from surrol_data.collect.script_source import features_for
     from surrol_data.datasets.reader import DatasetReader
     from surrol_data.datasets.schema import frame_features

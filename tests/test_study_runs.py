@@ -178,6 +178,8 @@ def test_shipped_demo_sets_validate_and_hash_as_recorded(natural):
 def test_a_batch_split_resumes_its_runs_and_shares_their_cpu_by_batch_size(tmp_path):
     """Runs of a killed batch of 3, resumed as a batch of 2: their checkpoints are kept, each epoch's ensemble CPU
     is divided by that epoch's batch size; a batch whose runs lack checkpoints starts afresh."""
+    import shutil
+
     from surrol_data.study.runs import _cpu_share, _start_batch
 
     work = tmp_path / ".work"
@@ -195,6 +197,13 @@ def test_a_batch_split_resumes_its_runs_and_shares_their_cpu_by_batch_size(tmp_p
     rows = [{"epoch": e, "time_cpu_learner_s": 6.0, "time_cpu_envs_s": 6.0} for e in range(7)]
     assert _cpu_share(rows, history) == pytest.approx(5 * 12 / 3 + 2 * 12 / 2)
     assert _cpu_share([{**rows[0], "batched_members": 4}], history) == pytest.approx(3.0)
+    # the pair finishing leaves the third run's checkpoints for later
+    from surrol_data.study.runs import _end_batch
+
+    for name in ("script", "novice"):
+        shutil.rmtree(work / name)            # _finish_run moved them into runs/
+    _end_batch(tmp_path)
+    assert (work / "expert" / "seed0" / "checkpoint.pt").is_file() and not (work / "batch.json").exists()
     # a new batch with a run that has no checkpoint starts every one of its runs afresh
     _start_batch(tmp_path, ["expert/0", "script/1"])
     assert not (work / "expert" / "seed0" / "checkpoint.pt").exists()

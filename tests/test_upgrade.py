@@ -52,7 +52,7 @@ def test_schema1_is_refused_with_the_upgrade_command(camera):
         DatasetReader(camera).trajectory(0)
     problems = validate_dataset(camera, check_reward=False, check_lerobot=False)
     assert [p.check for p in problems] == ["schema"] and "surrol-data upgrade" in problems[0].message
-    from surrol_data.collect.recorder import DatasetRecorder
+    from surrol_data.datasets.recorder import DatasetRecorder
 
     with pytest.raises(DatasetError, match="surrol-data upgrade"):  # appending (collect --append) says the same
         DatasetRecorder(camera, append=True, task="NeedleReach", env_id="SurRoL/NeedleReach-v0",

@@ -36,8 +36,8 @@ from surrol_data.collect.devices import HUMAN_DEVICES, Device, DeviceError, open
 from surrol_data.collect.devices.trace import mapping_from_dict, trace_path, write_trace
 from surrol_data.collect.mapping import ActionMapper, MappedStep, MappingSettings
 from surrol_data.collect.operator import SimulatedOperator
-from surrol_data.collect.recorder import DatasetRecorder
 from surrol_data.collect.script_source import features_for, first_seed, make_env
+from surrol_data.datasets.recorder import DatasetRecorder
 from surrol_data.datasets.trajectory import TrajectoryBuilder
 from surrol_data.envs import env_id as make_env_id
 from surrol_data.envs.names import dimension_names

@@ -11,12 +11,12 @@ import gymnasium as gym
 import numpy as np
 from tqdm import tqdm
 
-from surrol_data.collect.recorder import DatasetRecorder
+from surrol_data.collect.rollout import ORACLE, rollout
+from surrol_data.datasets.recorder import DatasetRecorder
 from surrol_data.datasets.schema import event_features, frame_features
 from surrol_data.datasets.trajectory import ENV_CAMERA
 from surrol_data.envs import env_id as make_env_id
 from surrol_data.envs.names import dimension_names
-from surrol_data.evaluation.rollout import ORACLE, rollout
 
 
 @dataclass

@@ -21,8 +21,8 @@ def _stderr(message: str) -> None:
 
 
 def ensure_finished(root: str | Path, notify: Callable[[str], None] = _stderr) -> None:
-    """Repair ``root`` if a killed writer left it unfinished (see :func:`surrol_data.collect.repair.is_unfinished`)."""
-    from surrol_data.collect.repair import is_unfinished, repair
+    """Repair ``root`` if a killed writer left it unfinished (see :func:`surrol_data.datasets.repair.is_unfinished`)."""
+    from surrol_data.datasets.repair import is_unfinished, repair
     from surrol_data.datasets.lock import writer_pid
 
     root = Path(root)

@@ -1,6 +1,6 @@
 """What is in a dataset: totals and a provenance breakdown (for ``surrol-data info DIR`` and the dataset card).
 
-Proficiency means follow :func:`surrol_data.evaluation.metrics.summarize`: steps to success and path
+Proficiency means follow :func:`surrol_data.datasets.metrics.summarize`: steps to success and path
 length are averaged over the *successful* episodes of a group (an unsuccessful episode has no steps to
 success, and its path is not comparable); jaw closures over all episodes.
 """
@@ -93,7 +93,7 @@ def skill_breakdown(root: str | Path) -> list[dict]:
     clutch uses and ``regrasp_rate``, the fraction of episodes with more than one jaw closure (a grasp
     that was retried). Empty when the dataset has no provenance.
     """
-    from surrol_data.evaluation.metrics import trajectory_proficiency
+    from surrol_data.datasets.metrics import trajectory_proficiency
 
     reader = DatasetReader(root)
     eps = reader.episodes

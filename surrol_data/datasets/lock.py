@@ -2,7 +2,7 @@
 
 The kernel releases the lock when the holding process ends, however it ends (SIGKILL included), so a
 held lock always means a live writer and a free lock on an unfinished dataset means a killed one (then
-:func:`surrol_data.collect.repair.repair` may run).
+:func:`surrol_data.datasets.repair.repair` may run).
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ when complete, so a killed merge leaves no output (and never touches its inputs)
 ``dataset_tools.split_dataset`` / ``delete_episodes`` rebuild the episodes table and drop extra per-episode
 columns; see shared/docs/reference/lerobot.md §2): every kept episode is read with
 :class:`~surrol_data.datasets.reader.DatasetReader` and written again through
-:class:`~surrol_data.collect.recorder.DatasetRecorder` with *all* its provenance columns given explicitly, so
+:class:`~surrol_data.datasets.recorder.DatasetRecorder` with *all* its provenance columns given explicitly, so
 nothing is recomputed or lost. ``merge --drop-duplicates`` takes that path too (it leaves episodes out). Camera
 frames are decoded by the reader and re-encoded (lossy, like any video re-encode).
 
@@ -110,8 +110,9 @@ def copy_episodes(selection: list[tuple[str | Path, list[int]]], out: str | Path
     Returns ``out``. ``_duplicates``: pairs a caller already left out (recorded in the sidecar).
     """
     _duplicates = list(_duplicates or [])
-    from surrol_data.collect.recorder import DatasetRecorder, _write_json_atomic
     from surrol_data.datasets.card import write_dataset_card
+    from surrol_data.datasets.recorder import DatasetRecorder
+    from surrol_data.datasets.writer import _write_json_atomic
 
     from surrol_data.datasets.guard import require_valid
 
@@ -235,11 +236,11 @@ def _aggregate(readers: list[DatasetReader], out: Path, shared: dict, *, command
     """LeRobot's aggregate_datasets into a staging folder, then traces, sidecar and card, then rename to ``out``."""
     import shutil
 
-    from surrol_data.collect.recorder import _write_json_atomic, git_commit
     from surrol_data.datasets.card import write_dataset_card
     from surrol_data.datasets.hub_offline import hub_offline, quiet_video_encoder
     from surrol_data.datasets.lock import DatasetLock, writer_pid
     from surrol_data.datasets.schema import package_version, utc_now_iso
+    from surrol_data.datasets.writer import _write_json_atomic, git_commit
 
     staging = staging_folder(out)
     if staging.exists():
@@ -341,7 +342,7 @@ def _copy_trace(src_root: Path, src_ep: int, dst_root: Path, dst_ep: int) -> Non
     """A haptic episode's device trace goes with it, under its new index (the file holds no index itself)."""
     import shutil
 
-    from surrol_data.collect.repair import TRACE_DIR
+    from surrol_data.datasets.repair import TRACE_DIR
 
     src = src_root / TRACE_DIR / f"episode_{src_ep:06d}.npz"
     if src.exists():

@@ -20,6 +20,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from surrol_data.datasets.errors import DatasetError
 from surrol_data.datasets.schema import (
     ENV_STATE,
     NEXT_ENV_STATE,
@@ -51,10 +52,6 @@ _GOAL_SPLIT = {"environment_state": ("achieved_goal", "desired_goal"),
 _TRAJECTORY_EXTRA = ("complementary_info.tip_position", "complementary_info.jaw_angle",
                      "complementary_info.next_tip_position", "complementary_info.next_jaw_angle",
                      *(f"complementary_info.{f}" for f in DEVICE_FLAGS))
-
-
-class DatasetError(ValueError):
-    """The folder is not a (readable) surrol_data / LeRobot v3 dataset; the message says what to do."""
 
 
 def parquet_files(root: Path, subdir: str) -> list[Path]:
@@ -90,7 +87,7 @@ def load_info(root: str | Path) -> dict:
         info = json.loads(path.read_text())
     except json.JSONDecodeError as e:
         raise DatasetError(f"{path} is not valid JSON ({e}); the recording was probably killed while writing it: "
-                           "run surrol_data.collect.recorder.repair(root)") from None
+                           f"run `surrol-data repair {root}`") from None
     if not isinstance(info, dict):
         raise DatasetError(f"{path} holds a JSON {type(info).__name__}, not LeRobot's info object; restore it or "
                            "run `surrol-data repair` (it rewrites info.json from the recorder's saved copy)")
@@ -106,7 +103,7 @@ def _check_readable(root: Path, bad: list[Path] | None = None) -> None:
     if bad:
         names = ", ".join(str(p.relative_to(root)) for p in bad)
         raise DatasetError(f"{root}: {names} cannot be read (no parquet footer: the recorder was killed before it "
-                           "could finalize). Run surrol_data.collect.recorder.repair(root) to keep every episode "
+                           f"could finalize). Run `surrol-data repair {root}` to keep every episode "
                            "completed before the last checkpoint.")
 
 
@@ -351,7 +348,7 @@ class DatasetReader:
         expected = int(self.episodes["length"].iloc[self._episode_row(ep)])
         if table.num_rows != expected:
             raise DatasetError(f"episode {ep}: {table.num_rows} frames in {self._data_path(self._episode_row(ep))}, "
-                               f"metadata says {expected}; run surrol_data.collect.recorder.repair(root)")
+                               f"metadata says {expected}; run `surrol-data repair {self.root}`")
         traj = self._trajectory_from(table)
         if images:
             traj.images = {cam: np.concatenate([f, f[-1:]]) for cam, f in self.frames(ep).items()}

@@ -310,7 +310,7 @@ def normalize_provenance(provenance: dict, trajectory=None, defaults: dict | Non
 
     ``defaults`` (e.g. the recorder's task, env id, command, git commit) fill keys the caller left out;
     metric columns left out are computed from ``trajectory`` with
-    :func:`surrol_data.evaluation.metrics.trajectory_proficiency`; ``recorded_at`` defaults to now and
+    :func:`surrol_data.datasets.metrics.trajectory_proficiency`; ``recorded_at`` defaults to now and
     ``package_version`` to the installed surrol_data. Raises :class:`ProvenanceError` naming the bad key.
     """
     if not isinstance(provenance, dict):
@@ -323,7 +323,7 @@ def normalize_provenance(provenance: dict, trajectory=None, defaults: dict | Non
     if missing_metrics:
         if trajectory is None:
             raise ProvenanceError(f"provenance lacks {missing_metrics} and no trajectory was given to compute them")
-        from surrol_data.evaluation.metrics import trajectory_proficiency
+        from surrol_data.datasets.metrics import trajectory_proficiency
 
         prof = trajectory_proficiency(trajectory)
         computed = {"success": prof.success, "steps_to_success": prof.steps_to_success,

@@ -312,7 +312,7 @@ def _check_info(info: dict, side: dict) -> list[Problem]:
 
 
 def _check_unfinished(root: Path) -> list[Problem]:
-    from surrol_data.collect.repair import is_unfinished
+    from surrol_data.datasets.repair import is_unfinished
     from surrol_data.datasets.lock import writer_pid
 
     holder = writer_pid(root)
@@ -404,7 +404,7 @@ def _episode_slices(meta: pa.Table):
 
 def _check_episodes(info: dict, meta: pa.Table, data: pa.Table) -> list[Problem]:
     """Per episode: stored content hash, provenance metrics recomputed, actions in range, timestamps, duplicates."""
-    from surrol_data.evaluation.metrics import trajectory_proficiency
+    from surrol_data.datasets.metrics import trajectory_proficiency
 
     features = {k: v for k, v in info["features"].items() if k not in _LEROBOT_DEFAULT}
     numeric = {k: column_to_numpy(data.column(k)).reshape(data.num_rows, -1)
@@ -585,7 +585,7 @@ def _check_traces(root: Path, meta: pa.Table, data: pa.Table) -> list[Problem]:
 
 
 def _check_videos(root: Path, info: dict, meta_full: pa.Table) -> list[Problem]:
-    from surrol_data.collect.repair import _video_ok
+    from surrol_data.datasets.repair import _video_ok
 
     keys = [k for k, ft in info["features"].items() if ft["dtype"] == "video"]
     problems = []
@@ -738,7 +738,7 @@ def _check_lerobot(root: Path, info: dict) -> list[Problem]:
     from surrol_data.datasets.hub_offline import hub_offline
 
     try:
-        from surrol_data.collect.recorder import VIDEO_BACKEND, _lerobot_dataset_class
+        from surrol_data.datasets.writer import VIDEO_BACKEND, _lerobot_dataset_class
 
         side = read_sidecar(root)
         with hub_offline():

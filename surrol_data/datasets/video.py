@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from surrol_data.datasets.reader import DatasetError
+from surrol_data.datasets.errors import DatasetError
 
 
 def decode_segment(path: str | Path, from_s: float, to_s: float, fps: float, expected: int) -> np.ndarray:

@@ -12,7 +12,8 @@ carries its own light), so what faces the camera is lit whatever the arm's pose.
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import numpy as np
 from surrol_data.envs.physics import pb  # physics imports pybullet quietly
@@ -123,19 +124,44 @@ def _checked_size(size) -> tuple[int, int]:
     return width, height
 
 
-CAMERA_RENDERERS = ("tiny", "panda3d")
+# Renderers by name: ``camera_renderer=NAME`` builds ``factory(client, size, scene_scale=...)``, an object with
+# ``render(world_T_eef, depth=False, segmentation=False) -> CameraImage``. "tiny" is built in; the others plug in
+# from outside without envs importing them: by an entry point of the group below (the package declares
+# ``panda3d = "surrol_data.render:panda3d_camera"`` in pyproject.toml), loaded the first time its name is asked
+# for, or by :func:`register_renderer`.
+RENDERER_ENTRY_POINTS = "surrol_data.renderers"
+_RENDERERS: dict[str, Callable[..., Any]] = {"tiny": EndoscopeCamera}
+
+
+def register_renderer(name: str, factory: Callable[..., Any]) -> None:
+    """Make ``camera_renderer=name`` build ``factory(client, size, scene_scale=...)``."""
+    _RENDERERS[name] = factory
+
+
+def _renderer_entry_points() -> dict:
+    from importlib.metadata import entry_points
+
+    return {ep.name: ep for ep in entry_points(group=RENDERER_ENTRY_POINTS)}
+
+
+def camera_renderers() -> tuple[str, ...]:
+    """The renderer names ``camera_renderer`` accepts: the built-in and registered ones, then the installed
+    entry points."""
+    return (*_RENDERERS, *(name for name in _renderer_entry_points() if name not in _RENDERERS))
 
 
 def make_camera(client, size: tuple[int, int] = (128, 128), scene_scale: float = 1.0, renderer: str = "tiny"):
     """The endoscope camera drawn by ``renderer``: ``"tiny"`` (PyBullet's CPU TinyRenderer, no set-up) or
-    ``"panda3d"`` (spotlight, shadows, anti-aliasing; :mod:`surrol_data.render`, imported only here)."""
-    if renderer == "tiny":
-        return EndoscopeCamera(client, size, scene_scale=scene_scale)
-    if renderer == "panda3d":
-        from surrol_data.extras import require
-
-        require("panda3d")
-        from surrol_data.render.panda_camera import PandaEndoscopeCamera
-
-        return PandaEndoscopeCamera(client, size, scene_scale=scene_scale)
-    raise ValueError(f"camera_renderer must be one of {', '.join(CAMERA_RENDERERS)}, got {renderer!r}")
+    ``"panda3d"`` (spotlight, shadows, anti-aliasing; :mod:`surrol_data.render`, found by its entry point and
+    imported only then), or any renderer registered by name (see :data:`RENDERER_ENTRY_POINTS`)."""
+    factory = _RENDERERS.get(renderer)
+    if factory is None:
+        found = _renderer_entry_points()
+        if renderer not in found:
+            hint = "" if found else (f" (no renderer is installed in the entry-point group {RENDERER_ENTRY_POINTS!r}: "
+                                     "reinstall surrol-data, e.g. `uv sync` or `pip install -e .`, to declare "
+                                     "'panda3d')")
+            raise ValueError(f"camera_renderer must be one of {', '.join(camera_renderers())}, got {renderer!r}"
+                             + hint)
+        factory = _RENDERERS[renderer] = found[renderer].load()
+    return factory(client, size, scene_scale=scene_scale)

@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from surrol_data.datasets.reader import DatasetReader
-from surrol_data.evaluation.metrics import DeviceTrace, trajectory_proficiency
+from surrol_data.datasets.metrics import DeviceTrace, trajectory_proficiency
 from surrol_data.evaluation.report import Column, metrics_table_markdown
 
 BENCHMARK_METRICS = ("steps_to_success", "path_length_cm", "errors")

@@ -9,7 +9,7 @@ demo source and skill):
   path length (bars = means from the rows, dots = single episodes where they are known).
 * :func:`write_report` puts them on one page, ``report.md``, next to the PNG.
 
-Rows are the dicts :func:`surrol_data.evaluation.metrics.summarize` returns, plus a ``source`` key; demo
+Rows are the dicts :func:`surrol_data.datasets.metrics.summarize` returns, plus a ``source`` key; demo
 trajectories are summarised with the same metric code as policy rollouts (one ruler for both).
 """
 
@@ -24,7 +24,7 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 
 from surrol_data.datasets.trajectory import Trajectory
-from surrol_data.evaluation.metrics import Proficiency, summarize, trajectory_proficiency
+from surrol_data.datasets.metrics import Proficiency, summarize, trajectory_proficiency
 
 REPORT_FILE = "report.md"
 FIGURE_FILE = "comparison.png"

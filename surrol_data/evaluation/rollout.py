@@ -2,15 +2,16 @@
 
 A policy is any callable ``obs_dict -> action`` (one with a ``reset()`` method, e.g. a chunking LeRobot
 policy, is reset at every episode start), or the string ``"oracle"`` for the env's scripted oracle
-(``env.unwrapped.oracle_action``). :func:`load_policy` turns a spec from the command line (``"oracle"``,
-``"lerobot:DIR"`` or a checkpoint path) into one of those. :func:`evaluate` runs a policy that names its
-``torch_threads`` (BC and DDPG actors: 1) with that many torch threads, and restores the count afterwards.
+(``env.unwrapped.oracle_action``); it may name ``torch_threads`` (BC and DDPG actors: 1), which
+:func:`evaluate` runs it with, restoring the count afterwards, and ``env_kwargs`` the env needs (a camera).
+One episode is :func:`surrol_data.collect.rollout.rollout`. Turning a spec from the command line (``"oracle"``,
+``"lerobot:DIR"`` or a checkpoint path) into a policy is :func:`surrol_data.algos.policies.load_policy`:
+evaluation never imports the learners.
 """
 
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -19,60 +20,9 @@ import gymnasium as gym
 import numpy as np
 from tqdm.auto import tqdm
 
-from surrol_data.datasets.trajectory import Trajectory, TrajectoryBuilder
-from surrol_data.evaluation.metrics import Proficiency, summarize, trajectory_proficiency
-
-ORACLE = "oracle"
-Policy = Callable[[dict], np.ndarray]
-
-
-def load_policy(spec: str | Path) -> Policy | str:
-    """``"oracle"`` stays the string (it is bound to an env at rollout time); ``"lerobot:DIR"`` is a policy trained
-    by ``lerobot-train`` (:mod:`surrol_data.evaluation.lerobot_policy`); anything else is a BC checkpoint path."""
-    if str(spec) == ORACLE:
-        return ORACLE
-    if str(spec).startswith("lerobot:"):
-        from surrol_data.evaluation.lerobot_policy import load_lerobot_policy
-
-        return load_lerobot_policy(str(spec))
-    path = Path(spec)
-    if not path.is_file():
-        raise FileNotFoundError(f"policy spec {str(spec)!r} is neither {ORACLE!r}, lerobot:DIR nor an existing "
-                                "checkpoint file")
-    from surrol_data.algos.bc import BCPolicy  # only checkpoint users pay for importing torch
-
-    return BCPolicy.load(path)
-
-
-def rollout(env: gym.Env, policy: Policy | str, seed: int, max_steps: int | None = None) -> Trajectory:
-    """One episode from ``env.reset(seed=seed)`` until terminated or truncated, or ``max_steps`` actions.
-
-    The whole horizon is run even after success (as SurRoL's demo generator does), so both the any-time
-    and the final-step success conventions can be read from the trajectory.
-    """
-    act = _bind(env, policy)
-    if max_steps is None and (env.spec is None or env.spec.max_episode_steps is None):
-        raise ValueError("the env has no time limit; pass max_steps or make it with gymnasium.make(..., max_episode_steps=T)")
-    space = env.action_space
-
-    obs, info = env.reset(seed=seed)
-    reset = getattr(act, "reset", None)
-    if callable(reset):
-        reset()  # stateful policies (action chunks, history) start each episode afresh
-    builder = TrajectoryBuilder(obs, info["tip_position"], info["jaw_angle"])
-    while max_steps is None or len(builder) < max_steps:
-        action = np.asarray(act(obs), np.float32)
-        if action.shape != space.shape:
-            raise ValueError(f"policy returned an action of shape {action.shape}, the env expects {space.shape}")
-        # Record exactly what the env executes: the env clips too, but the trajectory must hold the clipped value.
-        action = np.clip(action, space.low, space.high)
-        obs, reward, terminated, truncated, info = env.step(action)
-        builder.add(action, obs, reward, info["is_success"], terminated, info["tip_position"], info["jaw_angle"],
-                    info=info)
-        if terminated or truncated:
-            break
-    return builder.build()
-
+from surrol_data.collect.rollout import ORACLE, Policy, rollout
+from surrol_data.datasets.metrics import Proficiency, summarize, trajectory_proficiency
+from surrol_data.datasets.trajectory import Trajectory
 
 # Evaluation seeds start here: collectors number demo episodes from 0 (and --append continues the sequence), so a
 # policy is never scored on an episode it may have seen as a demonstration. Training evaluation uses the same base.
@@ -98,13 +48,18 @@ def evaluate(env_id: str, policy: Policy | str, episodes: int, seed: int = EVAL_
              progress: bool = True, keep_trajectories: bool = False, env_kwargs: dict | None = None) -> EvalResult:
     """Roll ``policy`` out for ``episodes`` episodes with seeds ``seed, seed+1, …`` and score each one.
 
-    ``max_steps`` overrides the registered horizon (the env is made with that time limit).
-    ``policy`` may also be a spec string for :func:`load_policy`.
+    ``max_steps`` overrides the registered horizon (the env is made with that time limit). ``policy`` is a
+    callable or ``"oracle"``; load a checkpoint or ``lerobot:DIR`` with
+    :func:`surrol_data.algos.policies.load_policy` first.
     """
     if episodes <= 0:
         raise ValueError(f"episodes must be positive, got {episodes}")
     if isinstance(policy, (str, Path)):
-        policy = load_policy(policy)
+        if str(policy) != ORACLE:
+            raise ValueError(f"policy {str(policy)!r} is a spec, not a policy: evaluate takes a callable obs -> "
+                             f"action or {ORACLE!r}; load a checkpoint or lerobot:DIR with "
+                             "surrol_data.algos.policies.load_policy first")
+        policy = ORACLE
     import surrol_data.envs  # noqa: F401  (registers the SurRoL/* ids)
 
     kwargs = {**getattr(policy, "env_kwargs", {}), **(env_kwargs or {})}  # e.g. a camera the policy looks through
@@ -145,16 +100,3 @@ def policy_threads(policy: Policy | str):
         yield
     finally:
         torch.set_num_threads(previous)
-
-
-def _bind(env: gym.Env, policy: Policy | str) -> Policy:
-    if isinstance(policy, str):
-        if policy != ORACLE:
-            raise ValueError(f"unknown policy string {policy!r}; use {ORACLE!r} or load a checkpoint with load_policy")
-        oracle = getattr(env.unwrapped, "oracle_action", None)
-        if oracle is None:
-            raise ValueError(f"{type(env.unwrapped).__name__} has no oracle_action; only SurRoL tasks have an oracle")
-        return oracle
-    if not callable(policy):
-        raise TypeError(f"policy must be a callable obs_dict -> action or {ORACLE!r}, got {type(policy).__name__}")
-    return policy

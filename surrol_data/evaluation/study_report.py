@@ -29,7 +29,7 @@ from typing import Mapping, Sequence
 
 import numpy as np
 
-from surrol_data.evaluation.metrics import Estimate, estimate
+from surrol_data.datasets.metrics import Estimate, estimate
 from surrol_data.evaluation.report import Column, metrics_table_markdown
 
 SOURCES_ORDER = ("script", "novice", "expert")

@@ -127,6 +127,16 @@ def _start_batch(out: Path, names: list[str]) -> None:
     record.write_text(json.dumps(names))
 
 
+def _end_batch(out: Path) -> None:
+    """After a batch finished: its runs' work folders are gone (moved into runs/); other runs' checkpoints (of an
+    earlier, split batch) stay to be resumed."""
+    work = out / ".work"
+    (work / "batch.json").unlink(missing_ok=True)
+    for folder in sorted(work.glob("*/*"), reverse=True) + sorted(work.glob("*"), reverse=True) + [work]:
+        if folder.is_dir() and not any(folder.iterdir()):
+            folder.rmdir()
+
+
 def _cpu_share(rows: list[dict], history: list[dict]) -> float:
     """The run's share of its batches' CPU seconds: each epoch's ensemble CPU over that epoch's batch size."""
     def members(epoch: int) -> int:
@@ -234,7 +244,7 @@ def run_study(experiment: str, out: str | Path, *, natural: bool = False, overri
             folder = _finish_run(out, spec, source, seed, Path(cfg.run_dir), composed, identity, hashes, started,
                                  len(selected))
             say(f"finished {run_name(source, seed)}: {folder}")
-        shutil.rmtree(out / ".work", ignore_errors=True)
+        _end_batch(out)
     if not finished_runs(out, spec):
         return {}
     return write_study_report([out / "runs"], out, epochs=list(spec.report_epochs), demo_table_markdown=demo_md,

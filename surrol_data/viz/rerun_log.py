@@ -42,7 +42,7 @@ import rerun.blueprint as rrb
 
 from surrol_data.datasets.trajectory import DEVICE_FLAGS, Trajectory
 from surrol_data.envs.units import CONTROL_PERIOD_S
-from surrol_data.evaluation.metrics import trajectory_proficiency
+from surrol_data.datasets.metrics import trajectory_proficiency
 
 APPLICATION_ID = "surrol_data"
 # Object position columns of the PSM task observation (NeedlePick & co.): tip (3), yaw, jaw..., object (3).

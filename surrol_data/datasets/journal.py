@@ -6,7 +6,7 @@ episode). Between checkpoints, each finished episode is also written here as one
 :class:`Trajectory` arrays and the normalized provenance — by write-to-temp + ``os.replace``, so a kill
 leaves either the whole entry or none. A checkpoint makes the episodes durable in the dataset's own files
 and deletes their entries, so the journal never holds more than ``checkpoint_every`` files.
-:func:`surrol_data.collect.repair.repair` replays the entries a hard kill left behind.
+:func:`surrol_data.datasets.repair.repair` replays the entries a hard kill left behind.
 
 Measured by ``benchmarks/dataset_io.py`` (the write speed with the journal on) and
 ``benchmarks/crash_safety.py`` (what a SIGKILL leaves).

@@ -4,7 +4,9 @@ Each class is a function ``damage(root)`` that changes one thing in a *copy* of 
 short, deleted or swapped, a value made NaN, scaled or out of range, metadata that disagrees with the
 data — covering every file of the format, every frame feature, the provenance columns, videos and device
 traces. :func:`base_dataset` writes the good dataset they start from (camera video, device traces, two
-data files). Used by ``tests/test_validate_fuzz.py`` and ``benchmarks/crash_safety.py``.
+data files). Used by ``tests/test_crash_safety.py`` and ``benchmarks/crash_safety.py``. It sits with the
+collectors, not with the format it damages, because its good dataset carries device traces, which the haptic
+collector's :mod:`~surrol_data.collect.devices.trace` writes (``docs/architecture.md``).
 """
 
 from __future__ import annotations
@@ -51,7 +53,7 @@ def base_dataset(root: str | Path, camera: bool = True) -> Path:
     """A good dataset: EPISODES haptic-provenance episodes in two data files, device traces, optional video."""
     from surrol_data.collect.devices.base import DeviceFrame
     from surrol_data.collect.devices.trace import trace_path, write_trace
-    from surrol_data.collect.recorder import DatasetRecorder
+    from surrol_data.datasets.recorder import DatasetRecorder
 
     root = Path(root)
     features = frame_features(OBS, GOAL, 5, 1, cameras={"front": CAMERA} if camera else None)
@@ -152,7 +154,7 @@ def _video(root: Path) -> Path:
 
 
 def _journal_leftover(root: Path) -> None:
-    from surrol_data.collect import journal
+    from surrol_data.datasets import journal
 
     journal.write_entry(root, EPISODES, _trajectory(99, STEPS, False), {"source": "haptic"})
 

@@ -1,6 +1,9 @@
-"""Record trajectories as a LeRobot v3 dataset (the real ``lerobot`` package) with per-episode provenance.
+"""Write trajectories as a LeRobot v3 dataset (the real ``lerobot`` package) with per-episode provenance.
 
-Usage::
+:class:`DatasetWriter` is the writer; :class:`surrol_data.datasets.recorder.DatasetRecorder`, what collectors and
+users open, is the writer that first repairs a dataset a killed recording left unfinished before appending to it
+(the repair writes its salvaged episodes through a plain :class:`DatasetWriter`, so the two never import each
+other round a circle). Usage::
 
     features = frame_features(obs_dim=19, goal_dim=3, act_dim=5, n_arms=1)
     with DatasetRecorder("datasets/needle_pick", features=features, task="NeedlePick",
@@ -17,11 +20,11 @@ Durability — what survives how the process ends:
   ever half written. Previous handlers are restored on close.
 * SIGKILL, power loss, ``os._exit``: LeRobot keeps one ParquetWriter open per session and a parquet
   file only becomes readable once its footer is written at close. So every finished episode is first
-  written to a per-episode journal (:mod:`surrol_data.collect.journal`, one small file, atomically) before
+  written to a per-episode journal (:mod:`surrol_data.datasets.journal`, one small file, atomically) before
   ``record`` returns, and the recorder **checkpoints** every ``checkpoint_every`` episodes or
   ``checkpoint_interval_s`` seconds: it closes every open file, continues in new data / metadata / video
   files (as LeRobot's resume would) and empties the journal, so files stay few and the journal short.
-  After a hard kill, :func:`surrol_data.collect.repair.repair` (``surrol-data repair``, run automatically
+  After a hard kill, :func:`surrol_data.datasets.repair.repair` (``surrol-data repair``, run automatically
   by every command that opens the dataset) cuts the unreadable files back and replays the journal: every
   finished episode is kept; only the one in progress is lost.
 * One writer at a time: the recorder holds a lock on the folder (:mod:`surrol_data.datasets.lock`); a
@@ -36,7 +39,7 @@ so LeRobot's ``episode_filter`` sees them.
 
 Speed (``benchmarks/dataset_io.py``): a state-only episode is handed to lerobot whole, as the frame buffer
 ``save_episode(episode_data=...)`` takes, instead of T ``add_frame`` calls that would re-validate every
-frame (:meth:`DatasetRecorder._frame_arrays` has already checked every dtype and shape); camera episodes
+frame (:meth:`DatasetWriter._frame_arrays` has already checked every dtype and shape); camera episodes
 still go through ``add_frame``, which stages the PNGs lerobot's video encoder reads. A checkpoint closes
 the open parquet files and points lerobot's writers at new ones (:func:`lerobot_compat.close_files_and_continue`) instead
 of ``finalize`` + ``resume``, whose reload of the episodes table costs ~1 s and grows with the dataset; the
@@ -67,7 +70,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from surrol_data.collect import journal
+from surrol_data.datasets import journal
 from surrol_data.datasets.card import write_dataset_card
 from surrol_data.datasets.hub_offline import hub_offline, quiet_video_encoder
 from surrol_data.datasets import lerobot_compat
@@ -144,7 +147,7 @@ def _features_mismatch(expected: dict, actual: dict) -> list[str]:
     return problems
 
 
-class DatasetRecorder:
+class DatasetWriter:
     """Context manager writing one :class:`Trajectory` per :meth:`record` call (see the module doc).
 
     ``root``: the dataset folder. With ``append=False`` it must not exist; with ``append=True`` an
@@ -157,8 +160,7 @@ class DatasetRecorder:
     def __init__(self, root: str | Path, *, task: str, env_id: str, task_description: str,
                  features: dict | None = None, repo_id: str | None = None, robot_type: str = ROBOT_TYPE,
                  append: bool = False, checkpoint_every: int = 10, checkpoint_interval_s: float | None = 60.0,
-                 command: str | None = None, handle_signals: bool = True, fast_save: bool = True,
-                 _repairing: bool = False):
+                 command: str | None = None, handle_signals: bool = True, fast_save: bool = True):
         self.root = Path(root)
         self.repo_id = repo_id or f"local/{self.root.resolve().name}"
         self.task, self.env_id, self.task_description = task, env_id, task_description
@@ -189,10 +191,7 @@ class DatasetRecorder:
             if not (self.root / INFO_PATH).exists():
                 raise DatasetError(f"{self.root} exists but is not a LeRobot dataset ({INFO_PATH} missing); "
                                    "choose a new folder or the root of an existing dataset")
-            if not _repairing:
-                from surrol_data.datasets.guard import ensure_finished
-
-                ensure_finished(self.root)  # a killed recording is repaired first (with a message)
+            self._before_append()
             existing = json.loads((self.root / INFO_PATH).read_text())["features"]
             if is_schema1(existing):
                 raise DatasetError(f"{self.root} was written with surrol_data schema 1: run `surrol-data upgrade "
@@ -230,7 +229,11 @@ class DatasetRecorder:
 
     # ------------------------------------------------------------------ lifecycle
 
-    def __enter__(self) -> DatasetRecorder:
+    def _before_append(self) -> None:
+        """Called when appending to an existing dataset, before its features are read: nothing here;
+        :class:`~surrol_data.datasets.recorder.DatasetRecorder` repairs a dataset a killed recording left."""
+
+    def __enter__(self) -> DatasetWriter:
         self.open()
         return self
 
@@ -537,13 +540,3 @@ def _raise_for_signal(signum: int) -> None:
     if signum == signal.SIGINT:
         raise KeyboardInterrupt
     raise SystemExit(128 + signum)  # like the default SIGTERM exit status, but unwinds through `finally`
-
-
-# ---------------------------------------------------------------------- repair
-
-
-def repair(root: str | Path):
-    """See :func:`surrol_data.collect.repair.repair` (kept here for the earlier import path)."""
-    from surrol_data.collect.repair import repair as _repair
-
-    return _repair(root)

@@ -5,9 +5,9 @@ What it keeps: every episode that is intact somewhere —
 1. the longest run of episodes ``0..k-1`` whose metadata row, frames (and video files) are in readable
    files stays where it is (the files are cut back in place: cheap, whatever the dataset's size);
 2. every later episode that is intact in a readable file (e.g. after a damaged *first* data file), and every
-   episode in the recorder's journal (:mod:`surrol_data.collect.journal`: the episodes finished since the
-   last checkpoint), is written again after them through :class:`DatasetRecorder`, renumbered, with its
-   provenance (and content hash) unchanged.
+   episode in the recorder's journal (:mod:`surrol_data.datasets.journal`: the episodes finished since the
+   last checkpoint), is written again after them through the dataset writer
+   (:class:`~surrol_data.datasets.writer.DatasetWriter`), renumbered, with its provenance (and content hash) unchanged.
 
 Everything else is reported as dropped, one reason per episode. Files that are moved out go to
 ``<root>/.surrol_data_repair/<time>/`` (delete it once satisfied), never deleted. Device traces are renamed
@@ -30,7 +30,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from surrol_data.collect import journal
+from surrol_data.datasets import journal
 from surrol_data.datasets.card import write_dataset_card
 from surrol_data.datasets.info import read_sidecar
 from surrol_data.datasets.lock import DatasetLock, writer_pid
@@ -323,8 +323,9 @@ def _from_files(root: Path, info: dict, row: dict, readable_data: dict):
 
 
 def _replay(root: Path, info: dict, salvage: list, report: RepairReport) -> None:
-    """Append the salvaged episodes through the recorder (a fresh dataset when none was kept in place)."""
-    from surrol_data.collect.recorder import DatasetRecorder
+    """Append the salvaged episodes through the writer (a fresh dataset when none was kept in place)."""
+    from surrol_data.datasets.writer import DatasetWriter
+
 
     side = read_sidecar(root)
     features = {k: v for k, v in info["features"].items() if k not in _DEFAULT_FEATURES}
@@ -336,12 +337,11 @@ def _replay(root: Path, info: dict, salvage: list, report: RepairReport) -> None
     if not kept and target.exists():
         shutil.rmtree(target)  # our own leftover from an earlier repair that was itself killed
     renames = []
-    recorder = DatasetRecorder(target, features=None if kept else features, task=task, env_id=env_id,
-                               task_description=description, append=bool(kept), repo_id=side.get("repo_id"),
-                               robot_type=info.get("robot_type") or side.get("robot_type") or "dvrk_psm",
-                               command=side.get("sessions", [{}])[-1].get("command", "surrol-data repair"),
-                               handle_signals=False, checkpoint_every=10_000, checkpoint_interval_s=None,
-                               _repairing=True)
+    recorder = DatasetWriter(target, features=None if kept else features, task=task, env_id=env_id,
+                             task_description=description, append=bool(kept), repo_id=side.get("repo_id"),
+                             robot_type=info.get("robot_type") or side.get("robot_type") or "dvrk_psm",
+                             command=side.get("sessions", [{}])[-1].get("command", "surrol-data repair"),
+                             handle_signals=False, checkpoint_every=10_000, checkpoint_interval_s=None)
     entries = dict(journal.entries(root))
     with recorder:
         for ep, (traj, provenance) in salvage:
@@ -379,7 +379,7 @@ def _replay(root: Path, info: dict, salvage: list, report: RepairReport) -> None
 
 
 def _mark_sessions_ended(root: Path, report: RepairReport) -> None:
-    from surrol_data.collect.recorder import _write_json_atomic
+    from surrol_data.datasets.writer import _write_json_atomic
 
     side = read_sidecar(root)
     now = utc_now_iso()
@@ -406,7 +406,7 @@ def _write_one_row_group_per_episode(table: pa.Table, path: Path) -> None:
 
 def _rewrite_metadata(root: Path, info: dict, kept_rows: list[dict]) -> None:
     """info.json totals, stats.json (re-aggregated from the kept episodes' stats) and tasks.parquet."""
-    from surrol_data.collect.recorder import _write_json_atomic
+    from surrol_data.datasets.writer import _write_json_atomic
 
     tasks: list[str] = []
     for r in kept_rows:
