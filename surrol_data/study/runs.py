@@ -225,12 +225,11 @@ def run_study(experiment: str, out: str | Path, *, natural: bool = False, overri
         train_cfgs = [to_train_config(c) for c in cfgs]
         identity = current_identity(train_cfgs[0])
         checks_path = out / CHECKS_FILE
-        if check_code:
-            append_check(checks_path, identity)
-            say(f"recorded this code's identity in {checks_path}: {identity.short()}")
         check_same_code({**committed_identities(out, spec), "this checkout": identity}, read_checks(checks_path))
-        if check_code:
-            say(f"this checkout means the same code as the {len(done)} finished run(s)")
+        if check_code:   # recorded only once it passed: the ledger links code that means the same
+            append_check(checks_path, identity)
+            say(f"this checkout means the same code as the {len(done)} finished run(s); recorded its identity in "
+                f"{checks_path}: {identity.short()}")
     if selected:
         names = [run_name(*r) for r in selected]
         say(f"training {len(selected)} run(s) of {experiment} as one batch: {', '.join(names)} "
