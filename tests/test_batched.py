@@ -205,8 +205,11 @@ def test_batched_runs_write_what_single_runs_write(tmp_path, reach_demos):
         assert read_metrics(cfg.run_dir) == json.loads(json.dumps(rows))
         assert (Path(cfg.run_dir) / "policy.pt").is_file() and (Path(cfg.run_dir) / "checkpoint.pt").is_file()
     b = batched[1]
-    untimed = lambda rows: [{k for k in r if not k.startswith("time_")} for r in rows]  # noqa: E731
-    assert untimed(b) == untimed(single)   # the batched rows add the epoch's CPU seconds (time_cpu_*)
+    untimed = lambda rows: [{k for k in r if not k.startswith("time_") and k != "batched_members"}  # noqa: E731
+                            for r in rows]
+    # the batched rows add the epoch's CPU seconds (time_cpu_*) and the batch size those seconds were shared by
+    assert untimed(b) == untimed(single)
+    assert all(r["batched_members"] == len(batched) for r in b)
     for key in ("epoch", "env_steps", "episodes", "updates"):
         assert [r[key] for r in b] == [r[key] for r in single]
     # same seeds, same batches: the offline phase agrees to rounding, the online losses stay close
