@@ -62,12 +62,10 @@ import subprocess
 import sys
 import threading
 import time
-from collections import Counter
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from surrol_data.datasets import journal
@@ -82,7 +80,6 @@ from surrol_data.datasets.reader import (
     INFO_PATH,
     DatasetError,
     parquet_files,
-    unreadable_parquet_files,
 )
 from surrol_data.datasets.schema import (
     ENV_STATE,
