@@ -42,6 +42,11 @@ def run_folder(out: Path, source: str, seed: int) -> Path:
     return out / "runs" / source / f"seed{seed}"
 
 
+def work_folder(out: Path, source: str, seed: int) -> Path:
+    """Where a run trains (checkpoints) until it is finished."""
+    return out / ".work" / source / f"seed{seed}"
+
+
 def finished_runs(out: Path, spec: StudySpec) -> list[tuple[str, int]]:
     return [r for r in spec.run_order() if (run_folder(out, *r) / RUN_RECORD).is_file()]
 
@@ -85,7 +90,7 @@ def _compose(spec: StudySpec, experiment: str, out: Path, sets: dict[str, Path],
         for source, seed in runs:
             base = [f"algo={spec.algo}", f"task={spec.task}", f"experiment={experiment}", f"demos={source}",
                     f"demos.path={sets[source]}", f"demos.num={spec.episodes}", f"seed={seed}",
-                    f"run_dir={out / '.work' / source / f'seed{seed}'}", "resume=true", "tensorboard=false",
+                    f"run_dir={work_folder(out, source, seed)}", "resume=true", "tensorboard=false",
                     f"progress={str(progress).lower()}"]
             base = [o for o in base if o.split("=", 1)[0] not in given]   # the config's and the user's win
             cfgs.append(compose("config", overrides=[*base, *spec.run_overrides, *spec.overrides]))
@@ -93,10 +98,11 @@ def _compose(spec: StudySpec, experiment: str, out: Path, sets: dict[str, Path],
 
 
 def _last_epoch(work: Path) -> int | None:
-    path = work / "metrics.jsonl"
-    if not (work / "checkpoint.pt").is_file() or not path.is_file():
+    from surrol_data.algos.train import read_metrics
+
+    if not (work / "checkpoint.pt").is_file() or not (work / "metrics.jsonl").is_file():
         return None
-    rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    rows = read_metrics(work)
     return int(rows[-1]["epoch"]) if rows else None
 
 
@@ -109,16 +115,18 @@ def _start_batch(out: Path, names: list[str]) -> None:
     work = out / ".work"
     record = work / "batch.json"
     before = json.loads(record.read_text()) if record.is_file() else []
-    folders = {name: work / name.split("/")[0] / f"seed{name.split('/')[1]}" for name in names}
-    resumable = before == names or all(_last_epoch(f) is not None for f in folders.values())
-    for name, folder in folders.items():
+    folders = [work_folder(out, source, int(seed)) for source, seed in (name.split("/") for name in names)]
+    last = {folder: _last_epoch(folder) for folder in folders}
+    resumable = before == names or all(epoch is not None for epoch in last.values())
+    for folder in folders:
         if not resumable:
             shutil.rmtree(folder, ignore_errors=True)
+            last[folder] = None
         history_path = folder / "batches.json"
         history = json.loads(history_path.read_text()) if resumable and history_path.is_file() else []
-        if not history and resumable and before and _last_epoch(folder) is not None:
+        if not history and before and last[folder] is not None:
             history = [{"from_epoch": 0, "members": len(before)}]   # trained before batches were recorded
-        start = (_last_epoch(folder) + 1) if resumable and _last_epoch(folder) is not None else 0
+        start = last[folder] + 1 if last[folder] is not None else 0
         if not history or history[-1]["members"] != len(names):
             history.append({"from_epoch": start, "members": len(names)})
         folder.mkdir(parents=True, exist_ok=True)
@@ -151,6 +159,7 @@ def _finish_run(out: Path, spec: StudySpec, source: str, seed: int, work: Path, 
     """Move a trained run's record into ``OUT/runs/<source>/seed<k>`` (one rename) and drop its checkpoints."""
     from omegaconf import OmegaConf
 
+    from surrol_data.algos.train import read_metrics
     from surrol_data.evaluation.study_report import versions
 
     final = run_folder(out, source, seed)
@@ -164,7 +173,7 @@ def _finish_run(out: Path, spec: StudySpec, source: str, seed: int, work: Path, 
     config["run_dir"] = final.relative_to(out).as_posix()
     (tmp / "config.json").write_text(json.dumps(config, indent=2))
     (tmp / "config.yaml").write_text(OmegaConf.to_yaml(composed, resolve=True))
-    rows = [json.loads(line) for line in (work / "metrics.jsonl").read_text().splitlines() if line.strip()]
+    rows = read_metrics(work)
     history = json.loads((work / "batches.json").read_text()) if (work / "batches.json").is_file() else \
         [{"from_epoch": 0, "members": members}]
     cpu = _cpu_share(rows, history)
