@@ -384,7 +384,7 @@ def study(experiment: str = typer.Argument(..., help="A study experiment config:
     try:
         files = run_study(experiment, out, natural=natural, overrides=override, next_runs=next_runs, runs=runs,
                           train=not report_only and not (check_code and next_runs is None and runs is None),
-                          build_demos=build_demos, check_code=check_code, command=_this_command(),
+                          build_demos=build_demos, check_code=check_code,
                           say=console.print)
     except (StudyReportError, DatasetError, ValueError, FileNotFoundError, RuntimeError) as e:
         _fail(str(e))

@@ -123,6 +123,8 @@ def test_a_partial_study_commits_run_folders_and_a_report_marked_partial(partial
     assert "(partial)" in report and "stands on 2 of the study's 6 runs" in report
     assert "Missing: expert/0, script/1, novice/1, expert/1" in report
     assert "## Recovery after a failed first grasp" in report
+    # the report names the command that rebuilds it, not the training command that last wrote it
+    assert f"Report command: `surrol-data study table1_quick --out {out} --report`" in report
 
 
 def test_the_final_policy_of_a_run_evaluates(partial_study):

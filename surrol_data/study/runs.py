@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import os
+import shlex
 import shutil
 import time
 from collections.abc import Sequence
@@ -198,7 +199,7 @@ def _finish_run(out: Path, spec: StudySpec, source: str, seed: int, work: Path, 
 
 def run_study(experiment: str, out: str | Path, *, natural: bool = False, overrides: Sequence[str] = (),
               next_runs: int | None = None, runs: str | None = None, train: bool = True, build_demos: bool = False,
-              check_code: bool = False, progress: bool = True, command: str | None = None,
+              check_code: bool = False, progress: bool = True,
               say=print) -> dict[str, Path]:
     """Train the selected runs of the study (``runs`` by name, else the next ``next_runs`` pending, else all
     pending; none with ``train=False``), then rebuild the report from every finished run. Returns the report's
@@ -259,7 +260,18 @@ def run_study(experiment: str, out: str | Path, *, natural: bool = False, overri
                               notes=_notes(spec, experiment),
                               expected_runs=[run_name(*r) for r in spec.run_order()],
                               code_checks=read_checks(out / CHECKS_FILE),
-                              command=command or f"surrol-data study {experiment} --out {out}")
+                              command=_rebuild_command(experiment, out, natural))
+
+
+def _rebuild_command(experiment: str, out: Path, natural: bool) -> str:
+    """The command that rebuilds this report from the committed runs. Not the command that happened to run last
+    (a training batch or a code check would name its own options and this machine's absolute paths)."""
+    try:
+        shown = Path(out).resolve().relative_to(Path.cwd().resolve())
+    except ValueError:
+        shown = Path(out)
+    return shlex.join(["surrol-data", "study", experiment, "--out", str(shown), *(["--natural"] if natural else []),
+                       "--report"])
 
 
 def _notes(spec: StudySpec, experiment: str) -> str:
