@@ -1,9 +1,19 @@
 """The endoscope camera: where it looks from, where a world point lands in its image, and what it renders.
 
-The camera sits at the ECM's EEF and looks along the endoscope axis (EEF z), with EEF y as the image's up
-direction — as in the reference (eye at the EEF link, target 2 cm ahead, 60° field of view, near 1 cm,
-far 10 m, real units). Image coordinates used by the tracking tasks are *normalised*: (−1, −1) is the
-top-left corner, (1, 1) the bottom-right, so they do not depend on the rendered size.
+The camera sits at the ECM's EEF and looks along the endoscope axis (EEF z), with EEF x as the image's up
+direction — as in the reference (``Ecm.render_image``: eye at the EEF link, target 2 cm ahead, up vector =
+the EEF link's x axis; 60° field of view, near 1 cm, far 10 m, real units). The EEF link of the reference's
+URDF *is* the DH frame 4 of :mod:`surrol_data.envs.ecm_kinematics` (``tests/test_camera_frame.py`` checks the
+URDF chain against it), so image up = x4 and image right = y4: an ECM pitched down at a scene shows world
+vertical as image up, the far side of the table at the top (:func:`camera_axes`).
+
+Image coordinates are *normalised*: (−1, −1) is the top-left corner, (1, 1) the bottom-right, so they do not
+depend on the rendered size.
+
+Until schema camera version 2 the image was turned a quarter turn (up = EEF y: world up at image left). The
+ECM tasks' observations (the tracked target's image position) and StaticTrack/ActiveTrack's camera-velocity
+actions were defined in that frame, and trained policies and recorded datasets depend on it, so those tasks
+keep computing them in it: :func:`tracking_axes`. What is *rendered* uses :func:`camera_axes`.
 
 Rendering uses PyBullet's CPU TinyRenderer with the light coming from the endoscope itself (an endoscope
 carries its own light), so what faces the camera is lit whatever the arm's pose.
@@ -43,11 +53,25 @@ class CameraImage(NamedTuple):
 
 
 def camera_axes(world_T_eef) -> CameraAxes:
-    """Camera axes from the EEF pose (4×4, world, real metres; an array or nested rows)."""
+    """The image's axes from the EEF pose (4×4, world, real metres; an array or nested rows): what the
+    renderers draw and what teleoperation maps the hand into. Image up is EEF x (the reference's up vector),
+    so image down is −x; right = down × forward = y completes the right-handed (right, down, forward) frame."""
     m = world_T_eef
     eye = (float(m[0][3]), float(m[1][3]), float(m[2][3]))
     forward = (float(m[0][2]), float(m[1][2]), float(m[2][2]))
-    # Image up is EEF y, so image down is −y; right completes the right-handed (right, down, forward) frame.
+    down = (-float(m[0][0]), -float(m[1][0]), -float(m[2][0]))
+    right = (float(m[0][1]), float(m[1][1]), float(m[2][1]))
+    return CameraAxes(eye, right, down, forward)
+
+
+def tracking_axes(world_T_eef) -> CameraAxes:
+    """The frame of the ECM tasks' observations and camera-velocity actions: the image frame of
+    :func:`camera_axes` turned a quarter turn about the view axis (its right is image down, its down is image
+    left; up = EEF y). Kept unchanged so that those tasks' observations, datasets and policies keep their
+    meaning; nothing is rendered in it."""
+    m = world_T_eef
+    eye = (float(m[0][3]), float(m[1][3]), float(m[2][3]))
+    forward = (float(m[0][2]), float(m[1][2]), float(m[2][2]))
     down = (-float(m[0][1]), -float(m[1][1]), -float(m[2][1]))
     right = (-float(m[0][0]), -float(m[1][0]), -float(m[2][0]))
     return CameraAxes(eye, right, down, forward)

@@ -20,7 +20,7 @@ from surrol_data.envs.physics import pb  # physics imports pybullet quietly
 from surrol_data.envs import ecm_kinematics as ekin
 from surrol_data.envs import kinematics as psm_kin
 from surrol_data.envs import physics
-from surrol_data.envs.camera import EndoscopeCamera, camera_axes, make_camera
+from surrol_data.envs.camera import EndoscopeCamera, camera_axes, make_camera, tracking_axes
 from surrol_data.envs.psm import matrix_to_quat
 
 # ECM base (URDF base link) → RCM: 0.6126 m forward, 0.1016 m up, turned −90° about z (the reference's URDF).
@@ -151,7 +151,12 @@ class Ecm:
         return [r[i][0] * x + r[i][1] * y + r[i][2] * z + o[i] for i in range(3)]
 
     def camera_axes(self):
+        """The image's axes (what is rendered; see :func:`surrol_data.envs.camera.camera_axes`)."""
         return camera_axes(self.eef_world)
+
+    def tracking_axes(self):
+        """The ECM tasks' observation and action frame (:func:`surrol_data.envs.camera.tracking_axes`)."""
+        return tracking_axes(self.eef_world)
 
     def sync_visual(self) -> None:
         """Move the visual shaft to the current pose (only scenes that render have one)."""

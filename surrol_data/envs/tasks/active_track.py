@@ -105,7 +105,7 @@ class ActiveTrack(StaticTrack):
 
     def _visible_from_start(self, path: np.ndarray) -> np.ndarray:
         """Which path samples project inside 90 % of the image from the initial camera pose."""
-        axes = self.ecm.camera_axes()
+        axes = self.ecm.tracking_axes()
         d = np.column_stack([path, np.full(len(path), TARGET_HEIGHT_M)]) - np.array(axes.eye)
         depth = d @ np.array(axes.forward)
         with np.errstate(divide="ignore", invalid="ignore"):

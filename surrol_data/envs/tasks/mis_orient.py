@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from surrol_data.envs import ecm_kinematics as ekin
-from surrol_data.envs.camera import CameraAxes, camera_axes, project
+from surrol_data.envs.camera import CameraAxes, project, tracking_axes
 from surrol_data.envs.ecm_env import EcmEnv, robot_state
 from surrol_data.envs.physics import pb
 
@@ -68,7 +68,7 @@ class MisOrient(EcmEnv):
     def build_scene(self) -> None:
         natural = [list(row) for row in ekin.ecm_fk_rows(*NATURAL_JOINTS)]
         world = self.ecm.world_T_rcm @ np.array(natural)
-        self._natural = camera_axes(world)
+        self._natural = tracking_axes(world)
         if self.visual:
             xs = np.linspace(*TILE_AREA[0], TILES[0])
             ys = np.linspace(*TILE_AREA[1], TILES[1])
@@ -92,7 +92,7 @@ class MisOrient(EcmEnv):
 
     def observe(self):
         w = self.ecm.eef_world
-        misorientation = image_misorientation(camera_axes(w), self._natural)
+        misorientation = image_misorientation(tracking_axes(w), self._natural)
         return [*robot_state(self.ecm.eef_rcm), *ekin.euler_xyz(w)], [misorientation]
 
     def is_success(self, achieved_goal, desired_goal):

@@ -3,14 +3,17 @@
 Also the base of ActiveTrack: the camera-velocity action, the tracking observation and the
 image-based visual-servoing oracle live here.
 
-Action (3,): a camera velocity in the camera's own frame (image right, image down, viewing direction);
+Action (3,): a camera velocity in the camera's tracking frame (:func:`~surrol_data.envs.camera.tracking_axes`:
+right, down, viewing direction of the image as it was rendered before schema camera version 2, a quarter turn
+from today's picture — its right is image down, its down is image left; kept so that datasets and policies keep
+their meaning; teleoperation maps the hand into the rendered image and converts);
 1 = 1 mm of camera motion per 0.1 s step (1 cm/s). The ECM realises it about its RCM: the EEF target moves
 by that much and the closed-form IK turns yaw/pitch and changes the insertion. A roll-compensation rate
 (the reference's ``wz``) turns the roll back towards the orientation the camera had at reset, more firmly
 as the target gets centred, so the image does not spin while the view swings.
 
 Observation (10): EEF pose in the RCM frame (6), target in view (1), target centre in normalised image
-coordinates (2, ±1 at the image edges, +x right, +y down), wz (1). Achieved goal (cx, cy, wz); desired
+coordinates of the tracking frame (2, ±1 at the image edges, +x right, +y down of that frame), wz (1). Achieved goal (cx, cy, wz); desired
 goal zeros; success when ‖(cx, cy)‖ < 0.01 (the reference also "tests" wz against itself, which always
 passes: wz is not part of success). The centre is the analytic projection of the cube's centre into the
 reference's 256×256 camera — the reference uses the centroid of the cube's rendered mask and falls back to
@@ -141,7 +144,7 @@ class StaticTrack(EcmEnv):
         self.ecm.command_eef_position_rcm(target, self.ecm.q[3] - ROLL_PER_WZ * self.wz)
 
     def _project_target(self) -> tuple[float, float, bool]:
-        x, y, depth = project(self.ecm.camera_axes(), self.target_position)
+        x, y, depth = project(self.ecm.tracking_axes(), self.target_position)
         if depth <= 0.0:
             return OUT_OF_VIEW, OUT_OF_VIEW, False
         x, y = max(-OUT_OF_VIEW, min(OUT_OF_VIEW, x)), max(-OUT_OF_VIEW, min(OUT_OF_VIEW, y))
