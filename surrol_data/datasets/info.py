@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from surrol_data.datasets.reader import DatasetReader
-from surrol_data.datasets.schema import SIDECAR_PATH
+from surrol_data.datasets.schema import SIDECAR_PATH, camera_version_of
 
 GROUP_BY = ("source", "device", "skill", "operator_id")
 
@@ -147,6 +147,7 @@ def render_info(root: str | Path):
         ("robot", s["robot_type"] or "–"),
         ("episodes", str(s["episodes"])),
         ("frames", f"{s['frames']} ({s['duration_s']:.1f} s at {s['fps']} fps)"),
+        *((("camera version", str(v)),) if (v := camera_version_of(side, s["features"])) is not None else ()),
     ):
         totals.add_row(label, value)
     if s["has_provenance"]:

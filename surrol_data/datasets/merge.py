@@ -33,7 +33,7 @@ from tqdm import tqdm
 
 from surrol_data.datasets.info import read_sidecar
 from surrol_data.datasets.reader import DatasetError, DatasetReader
-from surrol_data.datasets.schema import PROVENANCE_COLUMNS, SIDECAR_PATH
+from surrol_data.datasets.schema import CAMERA_VERSION, PROVENANCE_COLUMNS, SIDECAR_PATH, camera_version_of
 
 _LEROBOT_DEFAULT_FEATURES = ("timestamp", "frame_index", "episode_index", "index", "task_index")
 
@@ -90,7 +90,13 @@ def _check_compatible(readers: list[DatasetReader]) -> dict:
         missing = [k for k in PROVENANCE_COLUMNS if k not in other.episodes.columns]
         if missing:
             raise DatasetError(f"{other.root}: episodes lack provenance column(s) {missing}")
+        ours_v, theirs_v = camera_version_of(side, first.info["features"]), camera_version_of(other_side, other.info["features"])
+        if ours_v != theirs_v:
+            raise DatasetError(f"cannot combine {first.root} (camera version {ours_v}) with {other.root} (camera "
+                               f"version {theirs_v}): their endoscope images are turned and framed differently "
+                               "(see surrol_data.datasets.schema.CAMERA_VERSION)")
     return {"features": features, "task": side["task"], "env_id": side["env_id"],
+            "camera_version": camera_version_of(side, first.info["features"]) or CAMERA_VERSION,
             "task_description": _task_description(first.root, side),
             "robot_type": first.info.get("robot_type") or "dvrk_psm"}
 
@@ -140,7 +146,7 @@ def copy_episodes(selection: list[tuple[str | Path, list[int]]], out: str | Path
     provenance_of = []
     recorder = DatasetRecorder(out, features=shared["features"], task=shared["task"], env_id=shared["env_id"],
                                task_description=shared["task_description"], robot_type=shared["robot_type"],
-                               command=command, checkpoint_every=50)
+                               command=command, checkpoint_every=50, camera_version=shared["camera_version"])
     bar = tqdm(total=total, desc=f"{operation} -> {out.name}", unit="ep", disable=not progress)
     try:
         with recorder:

@@ -42,7 +42,8 @@ from surrol_data.datasets.reader import (
     parquet_files,
     trajectory_from_table,
 )
-from surrol_data.datasets.schema import PROVENANCE_COLUMNS, PROVENANCE_PREFIX, SIDECAR_PATH, utc_now_iso
+from surrol_data.datasets.schema import (CAMERA_VERSION, PROVENANCE_COLUMNS, PROVENANCE_PREFIX, SIDECAR_PATH,
+                                         camera_version_of, utc_now_iso)
 
 REPAIR_DIR = ".surrol_data_repair"
 TRACE_DIR = "meta/device_traces"  # = surrol_data.collect.devices.trace.TRACE_DIR (not imported: no device deps)
@@ -341,7 +342,8 @@ def _replay(root: Path, info: dict, salvage: list, report: RepairReport) -> None
                              task_description=description, append=bool(kept), repo_id=side.get("repo_id"),
                              robot_type=info.get("robot_type") or side.get("robot_type") or "dvrk_psm",
                              command=side.get("sessions", [{}])[-1].get("command", "surrol-data repair"),
-                             handle_signals=False, checkpoint_every=10_000, checkpoint_interval_s=None)
+                             handle_signals=False, checkpoint_every=10_000, checkpoint_interval_s=None,
+                             camera_version=camera_version_of(side, features) or CAMERA_VERSION)
     entries = dict(journal.entries(root))
     with recorder:
         for ep, (traj, provenance) in salvage:

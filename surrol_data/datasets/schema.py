@@ -50,6 +50,13 @@ import numpy as np
 from surrol_data.datasets.trajectory import DEVICE_FLAGS
 
 SCHEMA_VERSION = 2
+# What a camera dataset's endoscope images mean, recorded in the sidecar as ``camera_version`` (a dataset with
+# cameras and without the key is version 1; a dataset without cameras records none):
+#   1: image up = the ECM's EEF y axis (world up at image left); PSM scenes seen from SurRoL-v2's ECM pose;
+#   2: image up = the EEF x axis, as the reference renders it (world up at image up); PSM scenes framed on the
+#      workspace (surrol_data.envs.ecm.PSM_SCENE_JOINTS).
+# Images of two versions are not the same observation: appending and merging across versions are refused.
+CAMERA_VERSION = 2
 FPS = 5  # 1 / envs.units.CONTROL_PERIOD_S; LeRobot wants an int
 PROVENANCE_PREFIX = "provenance/"
 SIDECAR_PATH = "meta/surrol_data.json"
@@ -196,6 +203,13 @@ def frame_features(obs_dim: int, goal_dim: int, act_dim: int, n_arms: int,
         features[f"observation.images.{cam}"] = {"dtype": "video", "shape": (h, w, 3),
                                                  "names": ["height", "width", "channels"]}
     return features
+
+
+def camera_version_of(sidecar: dict, features: dict) -> int | None:
+    """The :data:`CAMERA_VERSION` a dataset's images were recorded with (None: it has no cameras)."""
+    if not any(k.startswith("observation.images.") for k in features):
+        return None
+    return int(sidecar.get("camera_version", 1))
 
 
 def is_schema1(features: dict) -> bool:

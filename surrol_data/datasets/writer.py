@@ -82,6 +82,7 @@ from surrol_data.datasets.reader import (
     parquet_files,
 )
 from surrol_data.datasets.schema import (
+    CAMERA_VERSION,
     ENV_STATE,
     FPS,
     NEXT_ENV_STATE,
@@ -90,6 +91,7 @@ from surrol_data.datasets.schema import (
     SCHEMA_VERSION,
     SIDECAR_PATH,
     content_hash,
+    camera_version_of,
     dims_from_features,
     is_schema1,
     normalize_provenance,
@@ -157,8 +159,12 @@ class DatasetWriter:
     def __init__(self, root: str | Path, *, task: str, env_id: str, task_description: str,
                  features: dict | None = None, repo_id: str | None = None, robot_type: str = ROBOT_TYPE,
                  append: bool = False, checkpoint_every: int = 10, checkpoint_interval_s: float | None = 60.0,
-                 command: str | None = None, handle_signals: bool = True, fast_save: bool = True):
+                 command: str | None = None, handle_signals: bool = True, fast_save: bool = True,
+                 camera_version: int = CAMERA_VERSION):
         self.root = Path(root)
+        # The images' camera version (schema.CAMERA_VERSION): what this code renders, unless the episodes are
+        # copied from a dataset recorded with another (merge, split, repair pass the source's).
+        self.camera_version = camera_version
         self.repo_id = repo_id or f"local/{self.root.resolve().name}"
         self.task, self.env_id, self.task_description = task, env_id, task_description
         self.robot_type = robot_type
@@ -204,6 +210,12 @@ class DatasetWriter:
                 if sidecar.get(key, value) != value:
                     raise ValueError(f"cannot append to {self.root}: it holds {key}={sidecar[key]!r}, "
                                      f"the recorder was given {value!r}; record into another dataset")
+            version = camera_version_of(sidecar, existing)
+            if version not in (None, camera_version):
+                raise ValueError(f"cannot append to {self.root}: its images are of camera version {version}, the "
+                                 f"new episodes' of camera version {camera_version} (the endoscope image was turned "
+                                 "and reframed; see surrol_data.datasets.schema.CAMERA_VERSION); record into a new "
+                                 "dataset")
             features = {k: v for k, v in existing.items() if k not in _LEROBOT_DEFAULT_FEATURES}
         elif features is None:
             raise ValueError("DatasetRecorder: features are required to create a dataset "
@@ -500,6 +512,8 @@ class DatasetWriter:
             "provenance_columns": {k: t.__name__ for k, t in PROVENANCE_COLUMNS.items()},
             "units": {"positions": "m", "angles": "rad", "path_length": "cm", "control_period_s": 1 / FPS},
         })
+        if self.dims["cameras"]:
+            side["camera_version"] = self.camera_version
         side.setdefault("created_at", side["updated_at"])
         sessions = side.setdefault("sessions", [])
         if sessions and sessions[-1].get("started_at") == self._session.get("started_at"):

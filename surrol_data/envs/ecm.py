@@ -28,9 +28,15 @@ BASE_T_RCM = psm_kin.pose_from([0.6126, 0.0, 0.1016], psm_kin.rot_z3(-np.pi / 2)
 # The reference's ECM tasks: base at (−0.05, 0, 1.0024) pitched 30° about y; the RCM lands at (0.531, 0, 0.784).
 ECM_TASK_BASE_POSITION = (-0.05, 0.0, 1.0024)
 ECM_TASK_BASE_PITCH_RAD = np.deg2rad(30.0)
-# SurRoL-v2 puts an ECM over every PSM scene as the operator's camera: base (0.15, 0, 0.8524), joints below.
+# SurRoL-v2 puts an ECM over every PSM scene as the operator's camera: base (0.15, 0, 0.8524), joints
+# (0, 0.6, 0.04, 0). From there the 60° view showed the whole table, the void beyond it and the table's front
+# edge, with the tray in a quarter of the image. The endoscope keeps that base but is aimed at the centre of the
+# tasks' workspace (1 cm above the table top) and inserted until it is 15 cm from it, as a surgeon frames the
+# field: the tray or board fills a 640×480 image edge to edge, no void or table edge in view, and the tools stay
+# in view through every oracle episode (tests/test_camera_frame.py checks all three).
 PSM_SCENE_BASE_POSITION = (0.15, 0.0, 0.8524)
-PSM_SCENE_JOINTS = (0.0, 0.6, 0.04, 0.0)
+PSM_SCENE_VIEW_TARGET = (0.55, 0.0, 0.685)
+PSM_SCENE_VIEW_DISTANCE_M = 0.15
 
 _SHAFT_RADIUS_M = 0.005
 _SHAFT_LENGTH_M = 0.30
@@ -167,9 +173,27 @@ class Ecm:
                                                     matrix_to_quat(w[:3, :3]))
 
 
+def aimed_joints(world_T_rcm: np.ndarray, target, distance_m: float) -> tuple[float, float, float, float]:
+    """ECM joints (roll 0) that point the endoscope from its RCM at ``target`` (world, real metres) with the
+    lens ``distance_m`` short of it."""
+    rcm = world_T_rcm[:3, 3]
+    direction = np.asarray(target, dtype=np.float64) - rcm
+    length = float(np.linalg.norm(direction))
+    eye = rcm + (length - distance_m) * direction / length
+    p_rcm = (np.linalg.inv(world_T_rcm) @ np.append(eye, 1.0))[:3]
+    q = ekin.ecm_ik_position(p_rcm, 0.0)
+    if not ekin.within_limits(q):
+        raise ValueError(f"the ECM cannot look at {tuple(target)} from {distance_m} m: joints {q} are outside its limits")
+    return q
+
+
+PSM_SCENE_JOINTS = aimed_joints(world_T_rcm_from_base(PSM_SCENE_BASE_POSITION), PSM_SCENE_VIEW_TARGET,
+                                PSM_SCENE_VIEW_DISTANCE_M)
+
+
 class SceneEndoscope:
     """A still ECM over a PSM scene with its camera: the endoscope view that ``camera=True`` adds to the
-    observation of PSM envs (SurRoL-v2's pose by default). The bimanual env uses it the same way:
+    observation of PSM envs (SurRoL-v2's base, aimed at the workspace: :data:`PSM_SCENE_JOINTS`). The bimanual env uses it the same way:
     ``SceneEndoscope(client, camera_size, scene_scale=SCALING)`` then ``.image()`` in its observation."""
 
     def __init__(self, client, size: tuple[int, int] = (128, 128), scene_scale: float = 1.0,
