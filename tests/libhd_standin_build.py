@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from surrol_data.collect.devices.base import BUTTON_CLUTCH, BUTTON_JAW, DeviceFrame
-from surrol_data.collect.mapping import ActionMapper, MappingSettings
+from surrol_data.collect.mapping import ActionMapper, MappingSettings, view_to_action
 from surrol_data.envs.units import ACTION_POSITION_M, ACTION_YAW_RAD
 
 SOURCE = Path(__file__).with_name("libhd_standin.c")
@@ -51,6 +51,7 @@ def oracle_device_frames(task: str, seed: int, horizon: int, mapping: MappingSet
     try:
         obs, _ = env.reset(seed=seed)
         mapper = ActionMapper(mapping)
+        view = view_to_action(env) if mapping.frame == "camera" else None   # the endoscope is still
         pos, gimbal = np.asarray(origin_mm, np.float64), np.zeros(3)
         frames, actions, after, success = [], [], None, False
         closing = False
@@ -60,7 +61,7 @@ def oracle_device_frames(task: str, seed: int, horizon: int, mapping: MappingSet
                 pos = pos - np.array([5.0, 0.0, 5.0])
                 frame = DeviceFrame(pos.copy(), gimbal.copy(), BUTTON_CLUTCH, float(k))
                 frames.append(frame)
-                actions.append(mapper(frame).arm)
+                actions.append(mapper(frame, view).arm)
                 obs, _, _, truncated, info = env.step(actions[-1])
                 continue
             if closing and mapper.jaw > -1.0:
@@ -71,13 +72,13 @@ def oracle_device_frames(task: str, seed: int, horizon: int, mapping: MappingSet
                 a = env.unwrapped.oracle_action(obs)
             closing = a[4] < 0
             if k > 0:   # the first frame of an attempt is the reference: it cannot move the tool
-                pos = pos + mapping.device_delta_mm(np.asarray(a[:3], np.float64) * ACTION_POSITION_M * 1000)
+                pos = pos + mapping.device_delta_mm(np.asarray(a[:3], np.float64) * ACTION_POSITION_M * 1000, view)
                 gimbal = gimbal.copy()
                 gimbal[mapping.rotation_axis] += float(a[3]) * ACTION_YAW_RAD / (mapping.rotation_scale
                                                                                   * mapping.rotation_sign)
             frame = DeviceFrame(pos.copy(), gimbal.copy(), BUTTON_JAW if a[4] < 0 else 0, float(k))
             frames.append(frame)
-            action = mapper(frame).arm
+            action = mapper(frame, view).arm
             actions.append(action)
             obs, _, _, truncated, info = env.step(action)
             if info["is_success"] and after is None:

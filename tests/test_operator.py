@@ -8,7 +8,7 @@ import pytest
 
 import surrol_data.envs  # noqa: F401  (registers the ids)
 from surrol_data.collect.devices.base import BUTTON_CLUTCH, DeviceError, DeviceFrame
-from surrol_data.collect.mapping import ActionMapper, MappingSettings
+from surrol_data.collect.mapping import ActionMapper, MappingSettings, view_to_action
 from surrol_data.collect.operator import PROFILES, SimulatedOperator, operator_params
 from surrol_data.collect.operator.motor import Hand, MotorNoise, fitts_duration, minimum_jerk
 from surrol_data.collect.operator.operator import DEVICE_HALF_RANGE, episode_key
@@ -36,7 +36,7 @@ def run_episode(env, operator: SimulatedOperator, seed: int, horizon: int = HORI
     for _ in range(horizon):
         operator.observe(obs, info)
         frame = operator.read()
-        step = mapper(frame)
+        step = mapper(frame, view_to_action(env))
         frames.append(frame)
         obs, reward, terminated, truncated, info = env.step(step.arm)
         builder.add(step.arm, obs, reward, info["is_success"], terminated, info["tip_position"], info["jaw_angle"],

@@ -11,7 +11,7 @@ import pytest
 
 import surrol_data.envs  # noqa: F401  (registers the ids)
 from surrol_data.collect.haptic_source import _human_horizon, collect_haptic
-from surrol_data.collect.mapping import ActionMapper, MappingSettings
+from surrol_data.collect.mapping import ActionMapper, MappingSettings, view_to_action
 from surrol_data.collect.operator import SimulatedOperator
 from surrol_data.datasets.reader import DatasetReader
 from surrol_data.datasets.validate import validate_dataset
@@ -102,7 +102,7 @@ def _episode(env, operator, seed, horizon):
     obs, info = env.reset(seed=seed)
     for _ in range(horizon):
         operator.observe(obs, info)
-        obs, _, terminated, truncated, info = env.step(mapper(operator.read()).arm)
+        obs, _, terminated, truncated, info = env.step(mapper(operator.read(), view_to_action(env)).arm)
         if info["is_success"] or terminated or truncated:
             break
     return bool(info["is_success"])

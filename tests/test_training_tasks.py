@@ -224,7 +224,7 @@ def test_oracle_success_rate(task, episodes):
 # ---------------------------------------------------------------------------------------------- simulated operators
 def _operator_episode(task: str, skill: str, seed: int) -> bool:
     """A simulated operator through the haptic session's loop (frames → mapping → env), 3× the horizon."""
-    from surrol_data.collect.mapping import ActionMapper, MappingSettings
+    from surrol_data.collect.mapping import ActionMapper, MappingSettings, view_to_action
     from surrol_data.collect.operator import SimulatedOperator
 
     env = gym.make(f"SurRoL/{task}-v0", max_episode_steps=3 * gym.spec(f"SurRoL/{task}-v0").max_episode_steps)
@@ -234,7 +234,7 @@ def _operator_episode(task: str, skill: str, seed: int) -> bool:
     obs, info = env.reset(seed=seed)
     for _ in range(env.spec.max_episode_steps):
         op.observe(obs, info)
-        obs, _, _, truncated, info = env.step(mapper(op.read()).arm)
+        obs, _, _, truncated, info = env.step(mapper(op.read(), view_to_action(env)).arm)
         if info["is_success"] or truncated:
             break
     env.close()

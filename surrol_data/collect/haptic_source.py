@@ -34,10 +34,11 @@ from tqdm import tqdm
 
 from surrol_data.collect.devices import HUMAN_DEVICES, Device, DeviceError, open_device
 from surrol_data.collect.devices.trace import mapping_from_dict, trace_path, write_trace
-from surrol_data.collect.mapping import ActionMapper, MappedStep, MappingSettings
+from surrol_data.collect.mapping import ActionMapper, MappedStep, MappingSettings, frame_defaults, view_to_action
 from surrol_data.collect.operator import SimulatedOperator
 from surrol_data.collect.script_source import features_for, first_seed, make_env
 from surrol_data.datasets.recorder import DatasetRecorder
+from surrol_data.datasets.schema import CAMERA_VERSION
 from surrol_data.datasets.trajectory import TrajectoryBuilder
 from surrol_data.envs import env_id as make_env_id
 from surrol_data.envs.names import dimension_names
@@ -141,7 +142,16 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
 def parse_mapping(overrides: Sequence[str], base: MappingSettings | None = None) -> MappingSettings:
     """``["motion_scale=0.4", "axis_sign=1,-1,1"]`` → MappingSettings (the CLI's ``--mapping`` options)."""
     values = (base or MappingSettings()).as_dict()
+    for item in overrides:   # a frame given first brings its natural axis map; later items may override it
+        key, _, text = item.partition("=")
+        if key.strip() == "frame":
+            try:
+                values.update(frame_defaults(text.strip()))
+            except ValueError as e:
+                raise ValueError(f"--mapping {item!r}: {e}") from None
     for item in overrides:
+        if item.partition("=")[0].strip() == "frame":
+            continue
         key, sep, text = item.partition("=")
         key = key.strip()
         if not sep or key not in values:
@@ -354,11 +364,12 @@ class _Session:
             if self.replay and any(d.exhausted for d in self.devices):
                 break
             steps: list[MappedStep] = []
-            for dev, mapper, log in zip(self.devices, mappers, frames, strict=True):
+            for arm, (dev, mapper, log) in enumerate(zip(self.devices, mappers, frames, strict=True)):
                 dev.observe(obs, info)
                 frame = dev.read()
                 log.append(frame)
-                steps.append(mapper(frame))
+                view = view_to_action(env, arm) if mapper.settings.frame == "camera" else None
+                steps.append(mapper(frame, view))
             action = self._action(steps, mappers)
             obs, reward, terminated, truncated, info = env.step(action)
             flags = {"clutch": any(s.clutch for s in steps), "jaw_button": any(s.jaw_button for s in steps)}
@@ -410,6 +421,9 @@ class _Session:
         device_settings = {
             "devices": [{"name": d.name, "side": side or "", "mapping": m.as_dict(), "settings": d.settings()}
                         for d, side, m in zip(self.devices, self.sides, mappings, strict=True)],
+            # The hand's frame per device (camera: the endoscope image of this camera version; robot: the
+            # action's axes); recorded actions are in the robot's frame either way.
+            "mapping_frames": [m.frame for m in mappings], "camera_version": CAMERA_VERSION,
             "horizon": self.horizon, "control_period_s": CONTROL_PERIOD_S, "realtime": self.realtime,
             "steps_after_success": STEPS_AFTER_SUCCESS,
         }

@@ -191,6 +191,13 @@ PSM_SCENE_JOINTS = aimed_joints(world_T_rcm_from_base(PSM_SCENE_BASE_POSITION), 
                                 PSM_SCENE_VIEW_DISTANCE_M)
 
 
+def scene_endoscope_pose() -> list[list[float]]:
+    """EEF pose (4×4 nested rows, world, real metres) of the still endoscope over every PSM scene."""
+    ecm = Ecm(world_T_rcm_from_base(PSM_SCENE_BASE_POSITION))
+    ecm.reset_joints(PSM_SCENE_JOINTS)
+    return ecm.eef_world
+
+
 class SceneEndoscope:
     """A still ECM over a PSM scene with its camera: the endoscope view that ``camera=True`` adds to the
     observation of PSM envs (SurRoL-v2's base, aimed at the workspace: :data:`PSM_SCENE_JOINTS`). The bimanual env uses it the same way:

@@ -101,6 +101,15 @@ class EcmEnv(gym.Env):
         """Set the ECM's joint targets for an action (already clipped to [-1, 1], plain floats)."""
         raise NotImplementedError
 
+    def action_axes(self) -> np.ndarray | None:
+        """World directions (3×3, one column per axis) of the action's x, y, z position terms now, for
+        teleoperation to map the hand from the image into; None when the action moves no position (a roll)."""
+        return None
+
+    def endoscope_pose(self) -> list[list[float]]:
+        """The EEF pose (4×4, world, real metres) of the endoscope the operator watches: the task's ECM."""
+        return self.ecm.eef_world
+
     def advance_scene(self) -> None:
         """Move what moves by itself (ActiveTrack's target), once per env step after the ECM."""
 

@@ -17,7 +17,7 @@ from gymnasium import spaces
 from surrol_data.envs import kinematics as kin
 from surrol_data.envs import objects, physics
 from surrol_data.envs.adaptive_steps import SubstepPlanner
-from surrol_data.envs.ecm import SceneEndoscope
+from surrol_data.envs.ecm import SceneEndoscope, scene_endoscope_pose
 from surrol_data.envs.free_motion import FreeMotion
 from surrol_data.envs.grasp import Grasp
 from surrol_data.envs.numeric import clip, norm
@@ -356,6 +356,19 @@ class PsmEnv(gym.Env):
 
     def tip_pose(self) -> np.ndarray:
         return self._tip
+
+    def action_axes(self, arm: int = 0) -> np.ndarray:
+        """World directions (3×3, one column per axis) of arm ``arm``'s action x, y, z: the world's own, for
+        every PSM task (1 = 1 cm of tip motion along world x, y, z)."""
+        return np.eye(3)
+
+    def endoscope_pose(self) -> list[list[float]]:
+        """The EEF pose (4×4, world, real metres) of the endoscope the operator watches: the ``camera=True``
+        endoscope, or the same still pose when the env renders no camera (:data:`~surrol_data.envs.ecm.
+        PSM_SCENE_JOINTS`)."""
+        if self.endoscope is not None:
+            return self.endoscope.ecm.eef_world
+        return scene_endoscope_pose()
 
     def _apply_action(self, action: np.ndarray) -> None:
         pose = self._tip

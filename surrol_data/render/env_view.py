@@ -20,12 +20,10 @@ class EnvEndoscope:
             self.scene_scale = u.endoscope.camera.scene_scale
             self._ecm, self._sync = u.endoscope.ecm, None
         elif getattr(u, "psm", None) is not None:
-            from surrol_data.envs.ecm import PSM_SCENE_BASE_POSITION, PSM_SCENE_JOINTS, Ecm, world_T_rcm_from_base
+            from surrol_data.envs.ecm import scene_endoscope_pose
 
             self.scene_scale = SCALING
-            self._ecm = Ecm(world_T_rcm_from_base(PSM_SCENE_BASE_POSITION))
-            self._ecm.reset_joints(PSM_SCENE_JOINTS)
-            self._sync = None
+            self._ecm, self._sync = _StillPose(scene_endoscope_pose()), None
         else:
             self.scene_scale = 1.0
             self._ecm, self._sync = u.ecm, u._sync_scene
@@ -35,3 +33,10 @@ class EnvEndoscope:
         if self._sync is not None:
             self._sync()
         return self._ecm.eef_world
+
+
+class _StillPose:
+    """The pose of an endoscope that never moves, where :class:`EnvEndoscope` reads an ECM's."""
+
+    def __init__(self, eef_world):
+        self.eef_world = eef_world

@@ -1,7 +1,8 @@
 """The ``gamepad`` device: a game controller through pygame's joystick module, as a virtual stylus.
 
-Default layout (SDL's mapping of Xbox-style pads): left stick → tool y (left/right) and x (forward/back),
-right stick vertical → tool z, shoulder buttons → yaw, button A → jaw (button 1), button B → clutch
+Default layout (SDL's mapping of Xbox-style pads), in the device frame every device shares (x right, y up,
+z towards the user): left stick left/right → x, left stick pushed forward → −z (away from you: the tool goes
+deeper into the image under the default camera-frame mapping), right stick up/down → y, shoulder buttons → yaw, button A → jaw (button 1), button B → clutch
 (button 2). Sticks are dead-zoned (centred sticks drift by a few percent) and integrated by
 :class:`~surrol_data.collect.devices.rate.VirtualStylus`. A pad unplugged mid-session raises DeviceError.
 """
@@ -19,8 +20,9 @@ from surrol_data.collect.devices.rate import DEFAULT_SPEED_MM_S, DEFAULT_TURN_RA
 
 @dataclass(frozen=True)
 class PadLayout:
-    # (axis index, sign) per device axis x, y, z; under the default mapping device x → tool y, y → tool z, z → tool x
-    axes: tuple[tuple[int, float], tuple[int, float], tuple[int, float]] = ((0, 1.0), (3, -1.0), (1, -1.0))
+    # (axis index, sign) per device axis x, y, z. SDL reports a stick pushed up/forward as −1: the right stick's
+    # up is +y, the left stick's forward is −z (away from the user, as a stylus pushed away).
+    axes: tuple[tuple[int, float], tuple[int, float], tuple[int, float]] = ((0, 1.0), (3, -1.0), (1, 1.0))
     turn_left: int = 4      # left shoulder
     turn_right: int = 5     # right shoulder
     jaw: int = 0            # A

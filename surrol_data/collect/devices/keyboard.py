@@ -7,11 +7,11 @@ Two key sources feed the same key-state logic (:class:`KeyTracker`):
   character (longer than the usual 250–600 ms auto-repeat delay, shorter than a deliberate pause);
 * :class:`PyBulletKeys` reads ``getKeyboardEvents`` of the GUI window, which reports real downs and ups.
 
-Layouts (SurRoL-v2 keyboard scenes, in tool directions with the default mapping): left hand
-``w/s`` ±z, ``d/a`` ±y, ``q/e`` ±x, ``z/x`` ±yaw, ``c`` jaw (button 1), ``v`` clutch (button 2);
-right hand ``i/k``, ``l/j``, ``u/o``, ``m/,``, jaw ``n``, clutch ``b``. The layouts move the virtual stylus
-along the *device* axes that the default :class:`~surrol_data.collect.mapping.MappingSettings` axis map sends
-to those tool axes. Session keys (read by the haptic session from the same tracker): ``r`` redo the attempt,
+Layouts (SurRoL-v2's keys; directions on the endoscope image under the default camera-frame
+:class:`~surrol_data.collect.mapping.MappingSettings`): left hand ``w/s`` up/down, ``d/a`` right/left, ``e/q``
+deeper (away from you)/back towards you, ``z/x`` ±yaw, ``c`` jaw (button 1), ``v`` clutch (button 2); right hand
+``i/k``, ``l/j``, ``o/u``, ``m/,``, jaw ``n``, clutch ``b``. The keys move the virtual stylus along the device
+axes (x right, y up, z towards the user) as a hand would move a stylus. Session keys (read by the haptic session from the same tracker): ``r`` redo the attempt,
 ``f`` discard it, ``Esc`` end the session.
 """
 
@@ -42,7 +42,7 @@ class KeyLayout:
         return {*self.motion, *self.turn, self.jaw, self.clutch}
 
 
-# Device axes under the default mapping: tool x ← device z, tool y ← device x, tool z ← device y.
+# Device axes: x right, y up, z towards the user (q / u pull the stylus towards you).
 LAYOUTS = {
     "left": KeyLayout(motion={"w": (1, 1.0), "s": (1, -1.0), "d": (0, 1.0), "a": (0, -1.0),
                               "q": (2, 1.0), "e": (2, -1.0)},

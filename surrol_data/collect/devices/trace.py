@@ -65,7 +65,10 @@ def mapping_from_dict(d: dict) -> MappingSettings:
     unknown = sorted(set(d) - set(fields))
     if unknown:
         raise ValueError(f"unknown mapping setting(s) {unknown}; known: {sorted(fields)}")
-    return MappingSettings(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+    values = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
+    # Traces written before the camera frame existed name no frame: their mapping was the robot frame's.
+    values.setdefault("frame", "robot")
+    return MappingSettings(**values)
 
 
 def write_trace(path: str | Path, frames: list[list[DeviceFrame]], actions, meta: dict) -> Path:

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from surrol_data.collect.devices.base import BUTTON_CLUTCH, BUTTON_JAW, Device, DeviceError, DeviceFrame
-from surrol_data.collect.mapping import MappingSettings
+from surrol_data.collect.mapping import MappingSettings, view_to_action
 from surrol_data.collect.operator.motor import MIN_JERK_PEAK_SPEED, POSE_DIM, Hand, fitts_duration
 from surrol_data.collect.operator.profiles import OperatorParams, identity_seed, operator_params
 from surrol_data.collect.operator.views import task_view
@@ -340,13 +340,18 @@ class SimulatedOperator(Device):
         """The hand motion the person believes moves the tool by ``tool_mm`` and turns it by ``yaw``."""
         m, gain = self._model_mapping, self.params.internal_gain
         hand = np.zeros(POSE_DIM)
-        hand[:3] = m.device_delta_mm(self._felt_rotation() @ tool_mm) / gain
+        hand[:3] = m.device_delta_mm(self._felt_rotation() @ tool_mm, self._view()) / gain
         hand[3] = yaw / (m.rotation_scale * m.rotation_sign * self.view.angle_ratio) / gain
         return hand
 
     def _believed_tool_motion(self, hand: np.ndarray) -> np.ndarray:
         m = self._model_mapping
-        return self._felt_rotation().T @ (m.tool_delta_mm(hand[:3]) * m.motion_scale * self.params.internal_gain)
+        return self._felt_rotation().T @ (m.tool_delta_mm(hand[:3], self._view()) * m.motion_scale
+                                          * self.params.internal_gain)
+
+    def _view(self) -> np.ndarray | None:
+        """The mapping's view matrix now (camera frame): the person sees the screen, so knows how the image turns."""
+        return view_to_action(self.env, self.arm) if self._model_mapping.frame == "camera" else None
 
     # ------------------------------------------------------------------ deciding
     def _decide(self, t: float) -> None:

@@ -47,6 +47,9 @@ class ECMReach(EcmEnv):
         target = (m[0][3] + action[0] * step, m[1][3] + action[1] * step, m[2][3] + action[2] * step)
         self.ecm.command_eef_position_rcm(target, self.ecm.q_target[3])
 
+    def action_axes(self) -> np.ndarray:
+        return self.ecm.world_T_rcm[:3, :3]     # 1 = 1 cm along the RCM frame's axes
+
     def observe(self):
         return robot_state(self.ecm.eef_rcm), self.ecm.eef_position_world()
 

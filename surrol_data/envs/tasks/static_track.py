@@ -143,6 +143,10 @@ class StaticTrack(EcmEnv):
         target = [m[i][3] - vr * m[i][0] - vd * m[i][1] + vf * m[i][2] for i in range(3)]
         self.ecm.command_eef_position_rcm(target, self.ecm.q[3] - ROLL_PER_WZ * self.wz)
 
+    def action_axes(self) -> np.ndarray:
+        axes = self.ecm.tracking_axes()          # the action is a camera velocity in the tracking frame
+        return np.column_stack([axes.right, axes.down, axes.forward])
+
     def _project_target(self) -> tuple[float, float, bool]:
         x, y, depth = project(self.ecm.tracking_axes(), self.target_position)
         if depth <= 0.0:
