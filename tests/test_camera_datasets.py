@@ -91,3 +91,29 @@ def test_merge_copies_video_without_reencoding(camera_datasets, tmp_path):
         trace = root / "meta" / "device_traces" / f"episode_{ep:06d}.npz"
         if trace.exists():
             assert (out / "meta" / "device_traces" / f"episode_{new:06d}.npz").read_bytes() == trace.read_bytes()
+
+
+def test_camera_version_is_recorded_and_not_mixed(camera_datasets, tmp_path):
+    # The endoscope image was turned and reframed (camera version 2): a dataset says which images it holds, and
+    # images of two versions never end up in one dataset.
+    import json
+    import re
+    import shutil
+
+    from surrol_data.datasets.schema import CAMERA_VERSION, SIDECAR_PATH
+
+    script, haptic = camera_datasets
+    side = json.loads((script / SIDECAR_PATH).read_text())
+    assert side["camera_version"] == CAMERA_VERSION == 2
+    assert re.search(r"camera version\W+2\b", _ok(["info", str(script)]))
+    old = tmp_path / "old"          # the same dataset as recorded before the bump: no camera_version
+    shutil.copytree(script, old)
+    del side["camera_version"]
+    (old / SIDECAR_PATH).write_text(json.dumps(side))
+    run = CliRunner().invoke(app, ["collect", "--source", "script", "--task", TASK, "--num-episodes", "1",
+                                   "--max-steps", str(STEPS), "--keep-failures", "--camera", "--camera-size",
+                                   f"{W}x{H}", "--out", str(old), "--append"])
+    assert run.exit_code != 0 and "camera version 1" in run.output, run.output
+    run = CliRunner().invoke(app, ["merge", str(old), str(haptic), "--out", str(tmp_path / "mixed")])
+    assert run.exit_code != 0 and "camera version" in run.output, run.output
+    assert not (tmp_path / "mixed").exists()

@@ -17,7 +17,7 @@ from surrol_data.collect.devices.replay import ReplayDevice
 from surrol_data.collect.devices.spacemouse import SpaceMouseDevice, parse_report
 from surrol_data.collect.devices.trace import mapping_from_dict, read_trace, write_trace
 from surrol_data.collect.haptic_source import parse_mapping
-from surrol_data.collect.mapping import ActionMapper, MappingSettings
+from surrol_data.collect.mapping import ActionMapper, MappingSettings, frame_defaults
 
 # ---------------------------------------------------------------------------------------------- touch
 
@@ -84,7 +84,7 @@ def test_keyboard_in_a_real_terminal_drives_the_tool_through_the_mapping():
     clock = [0.0]
     tracker = KeyTracker(TerminalKeys(fd=slave), hold_s=0.5, clock=lambda: clock[0])
     dev = KeyboardDevice(tracker, layout="left")
-    mapper = ActionMapper(MappingSettings())
+    mapper = ActionMapper(MappingSettings(**frame_defaults("robot")))   # device axes straight into action axes
     try:
         with dev:
             mapper(dev.read())                        # reference frame
