@@ -90,7 +90,8 @@ def _check_compatible(readers: list[DatasetReader]) -> dict:
         missing = [k for k in PROVENANCE_COLUMNS if k not in other.episodes.columns]
         if missing:
             raise DatasetError(f"{other.root}: episodes lack provenance column(s) {missing}")
-        ours_v, theirs_v = camera_version_of(side, first.info["features"]), camera_version_of(other_side, other.info["features"])
+        ours_v = camera_version_of(side, first.info["features"])
+        theirs_v = camera_version_of(other_side, other.info["features"])
         if ours_v != theirs_v:
             raise DatasetError(f"cannot combine {first.root} (camera version {ours_v}) with {other.root} (camera "
                                f"version {theirs_v}): their endoscope images are turned and framed differently "

@@ -183,7 +183,8 @@ def aimed_joints(world_T_rcm: np.ndarray, target, distance_m: float) -> tuple[fl
     p_rcm = (np.linalg.inv(world_T_rcm) @ np.append(eye, 1.0))[:3]
     q = ekin.ecm_ik_position(p_rcm, 0.0)
     if not ekin.within_limits(q):
-        raise ValueError(f"the ECM cannot look at {tuple(target)} from {distance_m} m: joints {q} are outside its limits")
+        raise ValueError(f"the ECM cannot look at {tuple(target)} from {distance_m} m: joints {q} are outside its "
+                         "limits")
     return q
 
 
@@ -200,7 +201,8 @@ def scene_endoscope_pose() -> list[list[float]]:
 
 class SceneEndoscope:
     """A still ECM over a PSM scene with its camera: the endoscope view that ``camera=True`` adds to the
-    observation of PSM envs (SurRoL-v2's base, aimed at the workspace: :data:`PSM_SCENE_JOINTS`). The bimanual env uses it the same way:
+    observation of PSM envs (SurRoL-v2's base, aimed at the workspace: :data:`PSM_SCENE_JOINTS`). The bimanual
+    env uses it the same way:
     ``SceneEndoscope(client, camera_size, scene_scale=SCALING)`` then ``.image()`` in its observation."""
 
     def __init__(self, client, size: tuple[int, int] = (128, 128), scene_scale: float = 1.0,
