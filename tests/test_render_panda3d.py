@@ -95,11 +95,14 @@ def test_segmentation_ids_and_depth_match_tinyrenderer(task_views, task):
 
 @pytest.fixture(scope="module")
 def raised_tool_scene():
-    """NeedlePick with the tool lifted 3 cm above its start: its shadow falls on the table."""
+    """NeedlePick with the tool brought over the middle of the pad, about 2 cm above it: its shadow falls on the pad.
+    (The endoscope is framed on the workspace, where the tool starts at the top edge of the view.)"""
     env = gym.make(env_id("NeedlePick"), camera=True, camera_size=(256, 256), camera_renderer="panda3d")
-    env.reset(seed=0)
-    for _ in range(3):
-        env.step(np.array([0, 0, 1, 0, 1], np.float32))
+    _, info = env.reset(seed=0)
+    for _ in range(12):
+        tip = np.asarray(info["tip_position"], np.float64).reshape(3)
+        move = np.clip((np.array([0.55, 0.0, 0.70]) - tip) / 0.01, -1.0, 1.0)   # 1 = 1 cm per step
+        _, _, _, _, info = env.step(np.array([*move, 0, 1], np.float32))
     yield env
     env.close()
 
@@ -135,20 +138,25 @@ def test_silhouettes_are_antialiased(raised_tool_scene):
     u = raised_tool_scene.unwrapped
     pose = u.endoscope.ecm.eef_world
 
-    def intermediate_fraction(multisamples: int) -> float:
+    def luminance_and_ids(multisamples: int):
         cam = PandaEndoscopeCamera(u.client, (256, 256), u.endoscope.camera.scene_scale, multisamples=multisamples)
         img = cam.render(pose, segmentation=True)
         cam.close()
-        lum, seg = luminance(img.rgb), img.segmentation
-        # Pixels on a silhouette (a different body to the left or right) between two clearly different sides.
-        edge = (seg[:, 1:-1] != seg[:, :-2]) | (seg[:, 1:-1] != seg[:, 2:])
-        left, mid, right = lum[:, :-2], lum[:, 1:-1], lum[:, 2:]
-        lo, hi = np.minimum(left, right), np.maximum(left, right)
-        between = (mid > lo + 0.15 * (hi - lo)) & (mid < hi - 0.15 * (hi - lo)) & (hi - lo > 20)
-        return between[edge].mean()
+        return luminance(img.rgb), img.segmentation
 
-    aliased, antialiased = intermediate_fraction(0), intermediate_fraction(4)
-    assert antialiased > 0.15 and antialiased > 1.8 * aliased, (antialiased, aliased)
+    antialiased, seg = luminance_and_ids(4)
+    aliased, _ = luminance_and_ids(0)
+    # Silhouette pixels: a different body beside them. Multisampling blends exactly those (measured: 24–26 % of
+    # them change by more than 10 levels) and leaves surfaces alone (1.8 %, texture detail).
+    edge = np.zeros(seg.shape, bool)
+    for a, b in ((np.s_[:, 1:], np.s_[:, :-1]), (np.s_[1:, :], np.s_[:-1, :])):
+        differs = seg[a] != seg[b]
+        edge[a] |= differs
+        edge[b] |= differs
+    changed = np.abs(antialiased - aliased) > 10
+    assert edge.sum() > 500, "silhouettes must be in view"
+    assert changed[edge].mean() > 0.15 and changed[edge].mean() > 8 * changed[~edge].mean(), (
+        changed[edge].mean(), changed[~edge].mean())
 
 
 def test_camera_renderer_option_gives_the_observation_image():
