@@ -1,0 +1,57 @@
+"""The README's Table I section states what the committed study runs say: how many runs it stands on, the success
+table, steps and path at epoch 100, the first epoch at ≥ 90 % and the recovery counts. A run committed without the
+README following (or a README edited by hand) fails here."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from surrol_data.evaluation.study_report import discover_runs, recovery_rows, table1_estimates
+
+ROOT = Path(__file__).resolve().parent.parent
+RUNS = ROOT / "docs" / "results" / "table1" / "runs"
+SOURCES = ("script", "novice", "expert")
+
+
+@pytest.fixture(scope="module")
+def section() -> str:
+    text = (ROOT / "README.md").read_text()
+    start = text.index("## Table I")
+    return text[start:text.index("\n## ", start + 1)]
+
+
+@pytest.fixture(scope="module")
+def runs():
+    return discover_runs([RUNS])
+
+
+def _mean_std(est, scale: float = 1.0) -> str:
+    return f"{est.mean * scale:.1f} ± {est.std * scale:.1f}"
+
+
+def test_the_run_count_and_the_success_table(section, runs):
+    assert f"**{len(runs)} of the 12 matched runs are committed" in section
+    est = table1_estimates(runs, [50, 100])
+    for epoch in (50, 100):
+        row = re.search(rf"^\| {epoch} \|(.*)\|$", section, re.M)
+        assert row, f"no epoch-{epoch} row in the README's success table"
+        ours = [c.strip() for c in row.group(1).split("|")][0::2]
+        assert ours == [_mean_std(est[epoch]["success_rate"][s], 100) for s in SOURCES], epoch
+
+
+def test_steps_path_first_epoch_at_90_and_recovery(section, runs):
+    est = table1_estimates(runs, [100])[100]
+    steps = " / ".join(f"{est['steps_to_complete'][s].mean:.1f}" for s in SOURCES)
+    path = " / ".join(f"{est['economy_of_motion_cm'][s].mean:.1f}" for s in SOURCES)
+    flat = " ".join(section.split())
+    assert f"Steps to complete at epoch 100: {steps}" in flat
+    assert f"economy of motion {path} cm" in flat
+    for source in SOURCES:
+        firsts = [next(row["epoch"] for row in r.rows if row.get("success_rate", 0) >= 0.9)
+                  for r in sorted(runs, key=lambda r: r.seed) if r.source == source]
+        assert f"{' and '.join(map(str, firsts))} for the {source}-trained" in flat, source
+    for row in recovery_rows(runs, 50):
+        assert f"{row['source']} {row['recovered']} of {row['first_failed']}" in flat, row
