@@ -47,8 +47,9 @@ from rich.console import Console  # noqa: E402
 from rich.table import Table  # noqa: E402
 
 TASK = "NeedleReach"
-PATHS = ("script", "haptic-operator", "haptic-replay", "append", "merge", "filter", "split", "export")
-HAPTIC = ("haptic-operator", "haptic-replay")
+PATHS = ("script", "haptic-operator", "haptic-replay", "intervene-operator", "append", "merge", "filter", "split",
+         "export")
+HAPTIC = ("haptic-operator", "haptic-replay", "intervene-operator")
 
 
 @dataclass
@@ -63,13 +64,17 @@ class Trial:
 
 
 def _command(path: str, out: Path, bases: dict, episodes: int) -> list[str]:
-    s, h = str(bases["script"]), str(bases["haptic"])
+    s, h, p = str(bases["script"]), str(bases["haptic"]), str(bases["policy"])
     return {
         "script": ["collect", "--source", "script", "--task", TASK, "--num-episodes", str(episodes), "--out", str(out)],
         "haptic-operator": ["collect", "--source", "haptic", "--device", "operator", "--skill", "expert",
                             "--operator-id", "e1", "--task", TASK, "--num-episodes", str(episodes), "--out", str(out)],
         "haptic-replay": ["collect", "--source", "haptic", "--device", "replay", "--trace", h, "--task", TASK,
                           "--num-episodes", str(episodes), "--out", str(out)],
+        # A policy that never moves: the simulated supervisor takes over in every episode.
+        "intervene-operator": ["collect", "--source", "intervene", "--policy", p, "--device", "operator", "--skill",
+                               "expert", "--operator-id", "e1", "--task", TASK, "--num-episodes", str(episodes),
+                               "--keep-failures", "--out", str(out)],
         "append": ["collect", "--source", "script", "--task", TASK, "--num-episodes", str(episodes), "--out", str(out),
                    "--append"],
         "merge": ["merge", s, h, "--out", str(out)],
@@ -155,8 +160,24 @@ def _run(args: list[str], log: Path, delay: float | None, sig: int | None) -> tu
     return finished, os.waitstatus_to_exitcode(status), wall
 
 
+def _still_policy(path: Path) -> Path:
+    """A BC checkpoint of TASK whose action is always zero (the intervention path's policy)."""
+    import torch
+
+    from surrol_data.algos.bc import BCConfig, BCPolicy
+    from surrol_data.algos.networks import DeterministicActor
+    from surrol_data.algos.normalizer import Normalizer
+
+    actor = DeterministicActor(7, 3, 5, (8,))
+    with torch.no_grad():
+        for weight in actor.parameters():
+            weight.zero_()
+    return BCPolicy(actor, Normalizer(7), Normalizer(3), BCConfig(hidden_sizes=(8,))).save(path)
+
+
 def _build_bases(work: Path) -> dict:
-    bases = {"script": work / "base_script", "haptic": work / "base_haptic"}
+    bases = {"script": work / "base_script", "haptic": work / "base_haptic",
+             "policy": _still_policy(work / "still_policy.pt")}
     for args in (["collect", "--source", "script", "--task", TASK, "--num-episodes", "6", "--out", str(bases["script"])],
                  ["collect", "--source", "haptic", "--device", "operator", "--skill", "expert", "--operator-id",
                   "e1", "--task", TASK, "--num-episodes", "4", "--out", str(bases["haptic"])]):
@@ -229,7 +250,7 @@ def _check_export(trial: Trial, total: int) -> dict:
 def kill_campaign(work: Path, paths: list[str], trials: int, signal_trials: int, seed: int, console: Console):
     rng = random.Random(seed)
     bases = _build_bases(work)
-    episodes = {"script": 6, "haptic-operator": 3, "haptic-replay": 4, "append": 4}
+    episodes = {"script": 6, "haptic-operator": 3, "haptic-replay": 4, "intervene-operator": 3, "append": 4}
     runs: list[Trial] = []
     durations = {}
     for path in paths:

@@ -22,6 +22,7 @@ console = Console()
 class Source(str, Enum):
     script = "script"
     haptic = "haptic"
+    intervene = "intervene"
 
 
 def _fail(message: str) -> None:
@@ -125,7 +126,8 @@ def demo(out: Optional[Path] = typer.Option(None, help="Folder for everything th
 
 
 @app.command()
-def collect(source: Source = typer.Option(..., help="Where actions come from: the scripted oracle or a teleoperation device."),
+def collect(source: Source = typer.Option(..., help="Where actions come from: the scripted oracle, a teleoperation "
+                                          "device, or a policy that the operator of a device takes over (intervene)."),
             task: str = typer.Option(..., help="Task name, e.g. NeedlePick (see `surrol-data tasks`)."),
             num_episodes: Optional[int] = typer.Option(None, min=1, help="Episodes to record (kept ones)."),
             out: Path = typer.Option(..., help="Dataset folder (must not exist unless --append)."),
@@ -154,26 +156,42 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
                                                   "natural one, e.g. expert_matched (the paper's demo pace)."),
             speed: float = typer.Option(1.0, min=0.01, max=1.0, help="script: the oracle's pace (0.3 matches the "
                                         "paper's script demos at --max-steps 150)."),
+            policy: Optional[str] = typer.Option(None, help="intervene: the policy that acts: a checkpoint (.pt), "
+                                                 "lerobot:DIR or 'oracle'."),
             old_episodes: Optional[int] = _old_count_option()):
     """Record demonstrations into a LeRobot v3 dataset with per-episode provenance (and the endoscope video)."""
     command = shlex.join(["surrol-data", *sys.argv[1:]])
     episodes = _count(num_episodes, old_episodes)
     size = _camera_size(camera, camera_size)
-    if source is Source.haptic:
+    if (policy is not None) != (source is Source.intervene):
+        _fail("--policy names the policy of --source intervene (and only of it)" if policy is not None else
+              "--source intervene needs --policy: a checkpoint (.pt), lerobot:DIR or 'oracle'")
+    if source is not Source.script:
         from surrol_data.collect.devices import DeviceError
         from surrol_data.collect.haptic_source import collect_haptic, parse_mapping
         from surrol_data.collect.script_source import camera_kwargs
 
+        acting, policy_info = None, None
+        if policy is not None:
+            from surrol_data.algos.policies import describe_policy, load_policy
+
+            try:
+                acting, policy_info = load_policy(policy), describe_policy(policy)
+            except (ValueError, FileNotFoundError) as e:
+                _fail(f"--policy: {e}")
         try:
             result = collect_haptic(task, episodes, out, device=device, operator_id=operator_id, skill=skill,
                                     sides=side or None, mapping=parse_mapping(mapping or []), trace=trace, seed=seed,
                                     max_steps=max_steps, keep_failures=keep_failures, append=append, gui=gui,
                                     rerun_live=rerun_live, command=command, env_kwargs=camera_kwargs(size),
-                                    profile=profile)
+                                    profile=profile, policy=acting, policy_info=policy_info)
         except (ValueError, FileExistsError, RuntimeError) as e:   # DeviceError is a RuntimeError
             _fail(str(e) if not isinstance(e, DeviceError) else f"device: {e}")
         console.print(f"recorded {result.kept} episodes ({result.attempts} attempts, success "
                       f"{result.success_rate:.0%}, {result.discarded} discarded, {result.redone} redone) into {out}")
+        if policy is not None:
+            console.print(f"the operator took over {result.takeovers} times and drove {result.intervention_frames} "
+                          f"of {result.frames} frames")
         return
     from surrol_data.collect.script_source import collect_script
 
@@ -306,7 +324,7 @@ def assess(dataset: Path = typer.Argument(..., help="Dataset folder."),
 
     from surrol_data.datasets.guard import require_valid
     from surrol_data.datasets.reader import DatasetError
-    from surrol_data.evaluation.assess import (ASSESS_COLUMNS, assess_dataset, assessment_notes, assessment_rows,
+    from surrol_data.evaluation.assess import (assess_dataset, assessment_columns, assessment_notes, assessment_rows,
                                                assessment_title, write_assessment)
     from surrol_data.evaluation.terminal_table import terminal_table
 
@@ -317,7 +335,8 @@ def assess(dataset: Path = typer.Argument(..., help="Dataset folder."),
     except (DatasetError, ValueError, FileNotFoundError) as e:
         _fail(str(e))
     console.print(Markdown(f"# {assessment_title(result)}"))
-    console.print(terminal_table(console, assessment_rows(result), ASSESS_COLUMNS))  # whole headers at 80 columns
+    # whole headers at 80 columns
+    console.print(terminal_table(console, assessment_rows(result), assessment_columns(result)))
     console.print(Markdown(assessment_notes(result)))
     if out is not None:
         files = write_assessment(result, out)

@@ -37,8 +37,8 @@ def test_docs_site_builds_strict(tmp_path):
                          cwd=REPO_ROOT, capture_output=True, text=True, timeout=600,
                          env={**os.environ, "NO_MKDOCS_2_WARNING": "1"})
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-5000:]
-    for page in ("index", "envs", "physics", "teleoperation", "datasets", "training", "evaluation", "rendering",
-                 "benchmarks", "api"):
+    for page in ("index", "envs", "physics", "teleoperation", "datasets", "training", "interventions", "evaluation",
+                 "rendering", "benchmarks", "api"):
         assert (tmp_path / "site" / f"{page}.html").is_file(), page
     api = (tmp_path / "site" / "api.html").read_text()
     assert "DatasetReader" in api and "run_study" in api, "the API reference was not generated from the docstrings"

@@ -29,8 +29,8 @@ _OUTPUTS = itertools.count()
 
 
 # The docs pages whose commands run after the README's, in this order (later pages use what earlier ones made).
-DOC_PAGES = ("index.md", "envs.md", "physics.md", "teleoperation.md", "datasets.md", "training.md", "evaluation.md",
-             "rendering.md", "benchmarks.md", "architecture.md", "api.md")
+DOC_PAGES = ("index.md", "envs.md", "physics.md", "teleoperation.md", "datasets.md", "training.md", "interventions.md",
+             "evaluation.md", "rendering.md", "benchmarks.md", "architecture.md", "api.md")
 # Where a command may write: git-ignored folders, the study's results, the user's home. Never the repository root.
 OUTPUT_ROOTS = ("outputs/", "datasets/", "runs/", "docs/results/", "~/")
 

@@ -13,6 +13,16 @@ One session = one env, one or two devices (one per PSM arm), one dataset. Per at
 4. a success (or any attempt with ``keep_failures``) is recorded with provenance and its device trace
    (:mod:`surrol_data.collect.devices.trace`).
 
+An intervention session (``policy`` given; ``collect --source intervene``) runs the same loop with a policy acting:
+at every step the policy proposes an action, and each arm executes it unless its operator holds the takeover control
+(:data:`~surrol_data.collect.devices.base.BUTTON_TAKEOVER`: a key, the gamepad's right trigger, a Touch's third
+button; ``space`` held takes every arm); then the arm executes the operator's. The device is read at every step, so
+the hand's motion while the policy drives moves nothing (as under the clutch) and a takeover starts where the hand
+is; the jaw command continues from the executed one. Every frame records who acted and the policy's proposal
+(:func:`surrol_data.datasets.schema.intervention_features`); the episode's provenance names the policy and counts
+the takeovers. ``--device operator`` makes the simulated operator a supervisor
+(:class:`surrol_data.collect.operator.supervisor.Supervisor`).
+
 Durability: the recorder checkpoints after every episode (human episodes are precious and slow), so a
 SIGKILL loses at most the episode in progress; Ctrl-C, SIGTERM, an unplugged device or any exception
 finalize the dataset with every finished episode.
@@ -32,13 +42,16 @@ import gymnasium as gym
 import numpy as np
 from tqdm import tqdm
 
-from surrol_data.collect.devices import HUMAN_DEVICES, Device, DeviceError, open_device
+from surrol_data.collect.devices import BUTTON_TAKEOVER, HUMAN_DEVICES, Device, DeviceError, open_device
 from surrol_data.collect.devices.trace import mapping_from_dict, trace_path, write_trace
 from surrol_data.collect.mapping import ActionMapper, MappedStep, MappingSettings, frame_defaults, view_to_action
 from surrol_data.collect.operator import SimulatedOperator
+from surrol_data.collect.operator.supervisor import Supervisor
+from surrol_data.collect.rollout import Policy, bind_policy, policy_action, start_episode
 from surrol_data.collect.script_source import features_for, first_seed, make_env
+from surrol_data.datasets.interventions import trajectory_interventions
 from surrol_data.datasets.recorder import DatasetRecorder
-from surrol_data.datasets.schema import CAMERA_VERSION
+from surrol_data.datasets.schema import CAMERA_VERSION, intervention_features
 from surrol_data.datasets.trajectory import TrajectoryBuilder
 from surrol_data.envs import env_id as make_env_id
 from surrol_data.envs.names import dimension_names
@@ -64,6 +77,9 @@ class HapticResult:
     redone: int = 0
     seeds: list[int] = field(default_factory=list)
     episode_indices: list[int] = field(default_factory=list)
+    takeovers: int = 0           # an intervention session: takeovers over the kept episodes
+    intervention_frames: int = 0
+    frames: int = 0              # frames of the kept episodes
     ended_by: str = ""           # "done", "operator" (Esc), "attempts" (max attempts reached), "traces" (replay)
 
     @property
@@ -83,7 +99,8 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
                    rerun_live: str | None = None, max_attempts: int | None = None, progress: bool = True,
                    command: str | None = None, library: str | Path | None = None,
                    realtime: bool | None = None, key_tracker=None, on_step=None,
-                   env_kwargs: dict | None = None, profile: str | None = None) -> HapticResult:
+                   env_kwargs: dict | None = None, profile: str | None = None,
+                   policy: Policy | str | None = None, policy_info: dict | None = None) -> HapticResult:
     """Record ``episodes`` kept teleoperated episodes of ``task`` into the dataset at ``out``.
 
     ``device``: a name of :data:`surrol_data.collect.devices.DEVICE_NAMES` (one device per arm is built with
@@ -98,6 +115,8 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
     (``step`` counts from 1 in each attempt), e.g. to draw a frame. ``env_kwargs``: extra ``gym.make`` arguments.
     ``profile``: the simulated operator's profile when not the skill's natural one, e.g. ``expert_matched`` (see
     :data:`surrol_data.collect.operator.profiles.MATCHED_PROFILES`); its skill must be ``skill``.
+    ``policy``: an intervention session (see the module docstring): the policy acts and the operator takes over;
+    ``policy_info`` is what the provenance records of it (spec, content hash, algorithm, training data).
     """
     if episodes <= 0:
         raise ValueError(f"the number of episodes must be positive, got {episodes}")
@@ -126,7 +145,7 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
     import surrol_data.envs  # noqa: F401  (registers the ids)
 
     eid = make_env_id(task)
-    seed = first_seed(out, append, seed, "haptic")
+    seed = first_seed(out, append, seed, "haptic" if policy is None else "intervention")
     registered = gym.spec(eid).max_episode_steps
     replay_horizon = _replay_horizon(trace) if names == ["replay"] else None
     horizon = max_steps or replay_horizon or _human_horizon(eid, registered)
@@ -134,7 +153,7 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
     try:
         return _Session(env, eid, episodes, out, device, names, operator_id, skill, sides, mapping, trace, seed,
                         horizon, keep_failures, append, gui, rerun_live, max_attempts or 3 * episodes, progress,
-                        command, library, realtime, key_tracker, on_step, profile).run()
+                        command, library, realtime, key_tracker, on_step, profile, policy, policy_info).run()
     finally:
         env.close()
 
@@ -204,7 +223,7 @@ class _Session:
 
     def __init__(self, env, eid, episodes, out, device, names, operator_id, skill, sides, mapping, trace, seed,
                  horizon, keep_failures, append, gui, rerun_live, max_attempts, progress, command, library,
-                 realtime, key_tracker=None, on_step=None, profile=None):
+                 realtime, key_tracker=None, on_step=None, profile=None, policy=None, policy_info=None):
         self.env, self.eid, self.episodes, self.out = env, eid, episodes, Path(out)
         self.task = eid.split("/")[1].rsplit("-v", 1)[0]
         self.operator_id, self.skill, self.seed, self.horizon = operator_id, skill, seed, horizon
@@ -241,7 +260,14 @@ class _Session:
             if len(self.devices) != n_devices:
                 raise ValueError(f"{self.task} needs {n_devices} device(s), {len(self.devices)} given")
         operators = [d for d in self.devices if isinstance(d, SimulatedOperator)]
-        if len(operators) > 1:   # two simulated hands on a bimanual task: one person
+        self.policy = None if policy is None else bind_policy(env, policy)
+        self.policy_info = dict(policy_info or {})
+        if self.policy is not None and operators:
+            if len(operators) > 1:
+                raise ValueError(f"the simulated supervisor takes over one-arm tasks; {self.task} has two arms: "
+                                 "supervise it with two human devices (one takeover control per arm)")
+            self.devices = [Supervisor(d) if isinstance(d, SimulatedOperator) else d for d in self.devices]
+        elif len(operators) > 1:   # two simulated hands on a bimanual task: one person
             SimulatedOperator.work_together(operators)
         # ECM tasks: the camera moves by camera_motion_scale × the hand motion and rolls by rotation_scale × the
         # hand roll. The mapping's actions assume the PSM's units (1 = 1 cm, 30°); an ECM task may use others
@@ -253,8 +279,12 @@ class _Session:
         self.replay = all(d.name == "replay" for d in self.devices)
         self.realtime = any(getattr(d, "realtime", False) for d in self.devices) if realtime is None else realtime
         self.live = _LiveStream(rerun_live, self.task) if rerun_live else None
+        features = features_for(env)
+        if self.policy is not None:
+            names = dimension_names(env)
+            features.update(intervention_features(names.n_arms, names.action))
         self.recorder = DatasetRecorder(self.out, task=self.task, env_id=eid, task_description=env.unwrapped.TASK,
-                                        features=features_for(env), append=append, command=command,
+                                        features=features, append=append, command=command,
                                         checkpoint_every=1, robot_type=dimension_names(env).robot_type)
         self.result = HapticResult(root=self.out)
 
@@ -290,6 +320,9 @@ class _Session:
                     if self.realtime:
                         tqdm.write("keys: r = redo this attempt, f = discard it, Enter = save it as it stands, "
                                    "Esc = end the session (Ctrl-C in a terminal)")
+                        if self.policy is not None:
+                            tqdm.write("the policy acts: hold space (or the device's takeover control) to take over, "
+                                       "release it to hand back")
                 while res.kept < target and res.attempts < self.max_attempts:
                     replayed = None
                     if self.replay:   # trace i holds attempt i's seed, mapping and operator
@@ -344,8 +377,12 @@ class _Session:
         for mapper, holds in zip(mappers, held):
             if holds:    # the task starts with the object in this hand: the jaw command starts closed
                 mapper.jaw = -1.0
+        if self.policy is not None:
+            start_episode(self.policy)
         builder = TrajectoryBuilder(obs, info["tip_position"], info["jaw_angle"])
         frames: list[list] = [[] for _ in self.devices]
+        last_jaw = np.array([m.jaw for m in mappers], np.float32)
+        driving = [self.policy is None] * len(self.devices)    # who drives each arm: the operator, or the policy
         after_success = None
         start = time.monotonic()
         if self.live:
@@ -363,18 +400,33 @@ class _Session:
                 return command, None, None
             if self.replay and any(d.exhausted for d in self.devices):
                 break
+            proposed = None if self.policy is None else policy_action(self.policy, obs, env.action_space)
+            everything = self._takeover_key_held()
             steps: list[MappedStep] = []
             for arm, (dev, mapper, log) in enumerate(zip(self.devices, mappers, frames, strict=True)):
                 dev.observe(obs, info)
                 frame = dev.read()
                 log.append(frame)
+                if proposed is not None:
+                    takes = everything or bool(frame.buttons & BUTTON_TAKEOVER)
+                    if takes and not driving[arm] and not self.ecm_only:
+                        mapper.jaw = float(last_jaw[arm])   # the jaw goes on from where the policy left it
+                    driving[arm] = takes
                 view = view_to_action(env, arm) if mapper.settings.frame == "camera" else None
                 steps.append(mapper(frame, view))
             action = self._action(steps, mappers)
+            if proposed is not None:
+                action = self._merge(proposed, action, driving)
             obs, reward, terminated, truncated, info = env.step(action)
-            flags = {"clutch": any(s.clutch for s in steps), "jaw_button": any(s.jaw_button for s in steps)}
+            last_jaw = action[4::5] if not self.ecm_only else last_jaw
+            # Device flags of the arms the operator drove (buttons pressed while the policy drives act on nothing).
+            acting = [s for s, d in zip(steps, driving, strict=True) if d]
+            flags = {"clutch": any(s.clutch for s in acting), "jaw_button": any(s.jaw_button for s in acting)}
             builder.add(action, obs, reward, info["is_success"], terminated, info["tip_position"], info["jaw_angle"],
-                        flags=flags, info=info)
+                        flags=flags, info=info, intervention=None if proposed is None else list(driving),
+                        policy_action=proposed)
+            if proposed is not None:
+                flags = {**flags, "operator": any(driving)}   # for the live view and on_step: who acted
             if self.live:
                 self.live.step(k, obs, action, info, flags)
             if self.on_step is not None:
@@ -402,6 +454,24 @@ class _Session:
             action = np.concatenate([s.arm for s in steps])
         # Record exactly what the env executes (it clips too).
         return np.clip(np.asarray(action, np.float32), space.low, space.high)
+
+    def _merge(self, proposed: np.ndarray, operator: np.ndarray, driving: list[bool]) -> np.ndarray:
+        """The executed action: per arm the operator's where they hold the takeover control, else the policy's."""
+        if self.ecm_only:
+            return operator if driving[0] else proposed
+        action = proposed.copy()
+        for arm, drives in enumerate(driving):
+            if drives:
+                action[5 * arm:5 * arm + 5] = operator[5 * arm:5 * arm + 5]
+        return action
+
+    def _takeover_key_held(self) -> bool:
+        """The session's takeover key (``space``) held: the operator takes every arm (devices without a control)."""
+        if self.policy is None or self.key_tracker is None:
+            return False
+        from surrol_data.collect.devices.keyboard import TAKEOVER_KEY
+
+        return TAKEOVER_KEY in self.key_tracker.held()
 
     def _session_command(self) -> str | None:
         if self.key_tracker is None:
@@ -436,7 +506,15 @@ class _Session:
             operator = {"operator_id": self.operator_id, "skill": self.skill, "operator_simulated": simulated,
                         "operator_params": json.dumps(self.devices[0].settings(), sort_keys=True, default=str)
                         if simulated else "{}"}
-        provenance = {"source": "haptic", "device": self.devices[0].name, **operator,
+        if self.policy is not None:
+            counts = trajectory_interventions(traj)
+            device_settings["policy"] = self.policy_info
+            device_settings["intervention"] = counts.as_dict()
+            if any(isinstance(d, Supervisor) for d in self.devices):
+                device_settings["supervisor_events"] = [[round(t, 3), e] for d in self.devices
+                                                        if isinstance(d, Supervisor) for t, e in d.events]
+        provenance = {"source": "haptic" if self.policy is None else "intervention", "device": self.devices[0].name,
+                      **operator,
                       "device_settings": json.dumps(device_settings, sort_keys=True, default=str),
                       "seed": attempt_seed, "duration_s": self._duration}
         # The trace goes to disk before the episode (a kill in between leaves a trace of no episode, which
@@ -456,6 +534,10 @@ class _Session:
             assert recorded == index, (recorded, index)
         self.result.kept += 1
         self.result.episode_indices.append(index)
+        self.result.frames += len(traj)
+        if self.policy is not None:
+            self.result.takeovers += counts.takeovers
+            self.result.intervention_frames += counts.intervention_frames
 
 
 class _LiveStream:

@@ -25,22 +25,17 @@ def rollout(env: gym.Env, policy: Policy | str, seed: int, max_steps: int | None
     The whole horizon is run even after success (as SurRoL's demo generator does), so both the any-time
     and the final-step success conventions can be read from the trajectory.
     """
-    act = _bind(env, policy)
+    act = bind_policy(env, policy)
     if max_steps is None and (env.spec is None or env.spec.max_episode_steps is None):
         raise ValueError("the env has no time limit; pass max_steps or make it with gymnasium.make(..., max_episode_steps=T)")
+
     space = env.action_space
 
     obs, info = env.reset(seed=seed)
-    reset = getattr(act, "reset", None)
-    if callable(reset):
-        reset()  # stateful policies (action chunks, history) start each episode afresh
+    start_episode(act)
     builder = TrajectoryBuilder(obs, info["tip_position"], info["jaw_angle"])
     while max_steps is None or len(builder) < max_steps:
-        action = np.asarray(act(obs), np.float32)
-        if action.shape != space.shape:
-            raise ValueError(f"policy returned an action of shape {action.shape}, the env expects {space.shape}")
-        # Record exactly what the env executes: the env clips too, but the trajectory must hold the clipped value.
-        action = np.clip(action, space.low, space.high)
+        action = policy_action(act, obs, space)
         obs, reward, terminated, truncated, info = env.step(action)
         builder.add(action, obs, reward, info["is_success"], terminated, info["tip_position"], info["jaw_angle"],
                     info=info)
@@ -49,7 +44,24 @@ def rollout(env: gym.Env, policy: Policy | str, seed: int, max_steps: int | None
     return builder.build()
 
 
-def _bind(env: gym.Env, policy: Policy | str) -> Policy:
+def start_episode(act: Policy) -> None:
+    """Call after every ``env.reset``: stateful policies (action chunks, history) start each episode afresh."""
+    reset = getattr(act, "reset", None)
+    if callable(reset):
+        reset()
+
+
+def policy_action(act: Policy, obs: dict, space: gym.spaces.Box) -> np.ndarray:
+    """The policy's action for ``obs``, checked against the action space and clipped to it."""
+    action = np.asarray(act(obs), np.float32)
+    if action.shape != space.shape:
+        raise ValueError(f"policy returned an action of shape {action.shape}, the env expects {space.shape}")
+    # Record exactly what the env executes: the env clips too, but the trajectory must hold the clipped value.
+    return np.clip(action, space.low, space.high)
+
+
+def bind_policy(env: gym.Env, policy: Policy | str) -> Policy:
+    """The callable of ``policy`` (the env's oracle for :data:`ORACLE`), or a clear error."""
     if isinstance(policy, str):
         if policy != ORACLE:
             raise ValueError(f"unknown policy string {policy!r}; use {ORACLE!r} or load a checkpoint with "

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from surrol_data.datasets.interventions import episode_interventions, operator_interventions
 from surrol_data.datasets.reader import DatasetReader
 from surrol_data.datasets.schema import SIDECAR_PATH, camera_version_of
 
@@ -51,7 +52,9 @@ def summarize(root: str | Path) -> dict:
     Keys: root, codebase_version, robot_type, fps, episodes, frames, duration_s (frames / fps), tasks,
     features (name -> {dtype, shape}), sidecar (meta/surrol_data.json), has_provenance, overall (the
     group stats of all episodes) and groups (list of dicts: the GROUP_BY keys + episodes, frames,
-    success_rate, mean_steps_to_success, mean_path_length_cm, mean_jaw_closures).
+    success_rate, mean_steps_to_success, mean_path_length_cm, mean_jaw_closures); interventions: a dataset of
+    intervention sessions, per GROUP_BY group of operator the takeovers (see
+    :func:`surrol_data.datasets.interventions.operator_interventions`), else [].
     """
     reader = DatasetReader(root)
     info = reader.info
@@ -74,10 +77,14 @@ def summarize(root: str | Path) -> dict:
         "overall": _group_stats(eps) if has_provenance else {"episodes": int(len(eps)),
                                                              "frames": int(eps["length"].sum())},
         "groups": [],
+        "interventions": [],
     }
     if has_provenance and len(eps):
         for key, rows in eps.groupby(list(GROUP_BY), sort=True):
             summary["groups"].append({**dict(zip(GROUP_BY, key, strict=True)), **_group_stats(rows)})
+        counts = episode_interventions(reader)
+        if counts is not None:
+            summary["interventions"] = operator_interventions(eps.merge(counts, on="episode_index"), list(GROUP_BY))
     return summary
 
 
@@ -179,6 +186,8 @@ def render_info(root: str | Path):
                            _fmt(100 * g["success_rate"]), _fmt(g["mean_steps_to_success"]),
                            _fmt(g["mean_path_length_cm"]), _fmt(g["mean_jaw_closures"], 2))
         parts.append(groups)
+        if s["interventions"]:
+            parts.append(_interventions_table(s["interventions"]))
         by_skill = skill_breakdown(root)
         if by_skill:
             prof = Table(title="Proficiency by source and skill", box=box.SIMPLE_HEAD, pad_edge=False,
@@ -195,6 +204,23 @@ def render_info(root: str | Path):
                              _fmt(g["mean_ldlj"], 2), _fmt(100 * g["regrasp_rate"], 0), _fmt(g["mean_clutch_uses"], 2))
             parts.append(prof)
     return Group(*parts)
+
+
+def _interventions_table(groups: list[dict]):
+    from rich import box
+    from rich.table import Table
+
+    table = Table(title="Interventions by operator", box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True,
+                  caption="takeovers = times the operator took an arm over from the policy; operator % = share of "
+                          "frames the operator drove; first = mean time to the first takeover (episodes with one)")
+    for col in ("source", "device", "skill", "operator", "eps", "takeovers", "per ep", "operator %", "first (s)"):
+        table.add_column(col, justify="left" if col in ("source", "device", "skill", "operator") else "right",
+                         no_wrap=col != "operator", overflow="fold")
+    for g in groups:
+        table.add_row(*(g[k] or "–" for k in GROUP_BY), str(g["episodes"]), str(g["takeovers"]),
+                      _fmt(g["takeovers_per_episode"], 2), _fmt(100 * g["intervention_share"], 0),
+                      _fmt(g["time_to_takeover_s"]))
+    return table
 
 
 def render_info_text(root: str | Path, width: int = 120) -> str:

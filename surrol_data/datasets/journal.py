@@ -42,6 +42,8 @@ def write_entry(root: str | Path, episode_index: int, traj: Trajectory, provenan
     arrays = {name: np.asarray(getattr(traj, name)) for name in _ARRAYS}
     arrays.update({f"flag.{k}": np.asarray(v) for k, v in traj.flags.items()})
     arrays.update({f"image.{k}": np.asarray(v) for k, v in traj.images.items()})
+    if traj.policy_action is not None:
+        arrays["policy_action"] = np.asarray(traj.policy_action)
     arrays["provenance"] = np.asarray(json.dumps(provenance, sort_keys=True))
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "wb") as fh:
@@ -56,7 +58,7 @@ def read_entry(path: str | Path) -> tuple[Trajectory, dict]:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}
         provenance = json.loads(str(data.pop("provenance")))
-        traj = Trajectory(**{name: data.pop(name) for name in _ARRAYS},
+        traj = Trajectory(**{name: data.pop(name) for name in _ARRAYS}, policy_action=data.pop("policy_action", None),
                           flags={k.removeprefix("flag."): v for k, v in data.items() if k.startswith("flag.")},
                           images={k.removeprefix("image."): v for k, v in data.items() if k.startswith("image.")})
     except Exception as e:  # a damaged entry is reported by the caller, whatever numpy raised

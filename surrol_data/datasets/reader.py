@@ -23,12 +23,15 @@ import pyarrow.parquet as pq
 from surrol_data.datasets.errors import DatasetError
 from surrol_data.datasets.schema import (
     ENV_STATE,
+    INTERVENTION_FEATURES,
+    INTERVENTION_ARMS,
     NEXT_ENV_STATE,
+    POLICY_ACTION,
     PROVENANCE_PREFIX,
     is_schema1,
     split_environment_state,
 )
-from surrol_data.datasets.trajectory import DEVICE_FLAGS, EVENT_FLAGS, Trajectory
+from surrol_data.datasets.trajectory import DEVICE_FLAGS, EVENT_FLAGS, INTERVENTION, Trajectory
 
 INFO_PATH = "meta/info.json"
 EPISODES_DIR = "meta/episodes"
@@ -148,7 +151,11 @@ def trajectory_from_table(table: pa.Table, features: dict) -> Trajectory:
         tip_position=tip.reshape(len(tip), n_arms, 3),
         jaw_angle=with_last("complementary_info.jaw_angle", "complementary_info.next_jaw_angle"),
         flags={**{f: arrays[f"complementary_info.{f}"].reshape(-1).astype(bool) for f in DEVICE_FLAGS},
-               **_event_flags(arrays, n_arms)},
+               **_event_flags(arrays, n_arms),
+               **({INTERVENTION: _as_2d(arrays[INTERVENTION_ARMS], n_arms).astype(bool)}
+                  if INTERVENTION_ARMS in arrays else {})},
+        policy_action=(_as_2d(arrays[POLICY_ACTION], dim("action")).astype(np.float32)
+                       if POLICY_ACTION in arrays else None),
     )
 
 
@@ -333,8 +340,10 @@ class DatasetReader:
         return trajectory_from_table(table, self.features)
 
     def _event_columns(self) -> list[str]:
-        """The optional env-event columns this dataset has (see :func:`surrol_data.datasets.schema.event_features`)."""
-        return [f"complementary_info.{e}" for e in EVENT_FLAGS if f"complementary_info.{e}" in self.features]
+        """The optional columns this dataset has: env events (:func:`surrol_data.datasets.schema.event_features`) and
+        who acted in an intervention session (:func:`~surrol_data.datasets.schema.intervention_features`)."""
+        events = [f"complementary_info.{e}" for e in EVENT_FLAGS if f"complementary_info.{e}" in self.features]
+        return events + [k for k in INTERVENTION_FEATURES if k in self.features]
 
     def trajectory(self, ep: int, images: bool = False) -> Trajectory:
         """Episode ``ep`` as a :class:`Trajectory` (T+1 observations, the last one included).

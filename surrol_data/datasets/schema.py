@@ -29,6 +29,12 @@ Mapping from a :class:`~surrol_data.datasets.trajectory.Trajectory` (T actions) 
 ``complementary_info.clutch`` / ``jaw_button``  device flags ``flags[...][t]``
 ``complementary_info.grasped`` / ``drop``   env events ``flags[...][t]`` (:func:`event_features`; datasets of
                                             tasks with grasps, recorded since they were added)
+``complementary_info.is_intervention``      who acted (:func:`intervention_features`, intervention sessions
+                                            only): 1.0 where the operator drove (any arm), 0.0 where the
+                                            policy did — LeRobot's HIL-SERL key, float32 (1,) as its
+                                            replay buffer writes it; ``intervention_arms`` per arm (bool);
+``complementary_info.policy_action``        ``policy_action[t]``: what the policy proposed (``action`` is
+                                            what was executed)
 ``observation.images.<camera>`` (video)     ``images[camera][t]`` (the image of ``s_T`` is not stored)
 =========================================  =====================================================
 
@@ -65,7 +71,7 @@ SIDECAR_PATH = "meta/surrol_data.json"
 # because the episodes parquet schema is fixed by the first episode and pandas/pyarrow would otherwise
 # turn a column into object/null types that break filtering and appending.
 PROVENANCE_COLUMNS: dict[str, type] = {
-    "source": str,              # script | haptic | policy
+    "source": str,              # script | haptic | policy | intervention
     "device": str,              # touch | keyboard | gamepad | spacemouse | replay | simulated-operator | none
     "operator_id": str,
     "skill": str,               # expert | novice | scripted | unknown
@@ -90,7 +96,7 @@ PROVENANCE_COLUMNS: dict[str, type] = {
 }
 
 PROVENANCE_CHOICES: dict[str, tuple[str, ...]] = {
-    "source": ("script", "haptic", "policy"),
+    "source": ("script", "haptic", "policy", "intervention"),
     "device": ("touch", "keyboard", "gamepad", "spacemouse", "replay", "simulated-operator", "none"),
     "skill": ("expert", "novice", "scripted", "unknown"),
 }
@@ -224,6 +230,25 @@ def event_features(n_arms: int) -> dict[str, dict]:
     arms = _arm_prefixes(n_arms)
     return {"complementary_info.grasped": {"dtype": "bool", "shape": (n_arms,), "names": [p + "grasped" for p in arms]},
             "complementary_info.drop": {"dtype": "bool", "shape": (1,), "names": ["drop"]}}
+
+
+IS_INTERVENTION = "complementary_info.is_intervention"
+INTERVENTION_ARMS = "complementary_info.intervention_arms"
+POLICY_ACTION = "complementary_info.policy_action"
+INTERVENTION_FEATURES = (IS_INTERVENTION, INTERVENTION_ARMS, POLICY_ACTION)
+
+
+def intervention_features(n_arms: int, action_names) -> dict[str, dict]:
+    """Who acted at each frame of an intervention session, added to :func:`frame_features` by its collector.
+
+    ``is_intervention`` follows LeRobot's HIL-SERL convention (``lerobot.rl``: the actor's
+    ``complementary_info["is_intervention"]``, stored by its replay buffer as a float32 of shape (1,), which its
+    learner reads to send the operator's transitions to the offline buffer): 1.0 where the operator drove any arm.
+    ``intervention_arms`` says which arm; ``policy_action`` is the policy's proposal beside the executed action."""
+    arms = _arm_prefixes(n_arms)
+    return {IS_INTERVENTION: _vector("float32", ["is_intervention"]),
+            INTERVENTION_ARMS: _vector("bool", [p + "operator" for p in arms]),
+            POLICY_ACTION: _vector("float32", [f"policy_{n}" for n in action_names])}
 
 
 def dims_from_features(features: dict) -> dict:

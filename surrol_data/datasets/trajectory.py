@@ -12,6 +12,9 @@ Shapes (T = number of actions taken):
   carries the same two names so datasets of different sources merge. Where the env reports grasps (PSM tasks)
   the :data:`EVENT_FLAGS` join them: ``grasped`` (T, n_arms) and ``drop`` (T,).
 * ``images``: optional camera name -> (T+1, H, W, 3) uint8.
+* ``policy_action``: optional (T, act_dim) float32, in an intervention session (``collect --source intervene``)
+  the action the policy proposed at each step, beside ``action``, what was executed; the session's flag
+  :data:`INTERVENTION` ``intervention`` (T, n_arms) says which arms the operator drove at each step.
 """
 
 from __future__ import annotations
@@ -28,6 +31,9 @@ ENV_CAMERA = "endoscope"
 # arm holds the object; ``drop`` (T,) — a hold was lost while the jaw stayed closed (the env's drop count rose).
 # The proficiency metrics count failed grasps and drops from them; without them those counts are unknown (nan).
 EVENT_FLAGS = ("grasped", "drop")
+# Who acted, in an intervention session: ``intervention`` (T, n_arms) — the operator held the takeover control of
+# that arm, and the executed action of the arm is the operator's, not the policy's.
+INTERVENTION = "intervention"
 
 
 @dataclass
@@ -43,6 +49,7 @@ class Trajectory:
     jaw_angle: np.ndarray
     flags: dict[str, np.ndarray] = field(default_factory=dict)
     images: dict[str, np.ndarray] = field(default_factory=dict)
+    policy_action: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.action)
@@ -57,6 +64,12 @@ class Trajectory:
         for name, values in self.flags.items():
             if len(values) != n:
                 raise ValueError(f"Trajectory.flags[{name!r}] has {len(values)} rows, expected T = {n}")
+        if (self.policy_action is None) != (INTERVENTION not in self.flags):
+            raise ValueError("Trajectory.policy_action and flags['intervention'] come together (an intervention "
+                             "session records both) or not at all")
+        if self.policy_action is not None and np.shape(self.policy_action) != np.shape(self.action):
+            raise ValueError(f"Trajectory.policy_action has shape {np.shape(self.policy_action)}, the actions "
+                             f"{np.shape(self.action)}")
 
     def __len__(self) -> int:
         return len(self.action)
@@ -88,12 +101,15 @@ class TrajectoryBuilder:
         self._flags: dict[str, list[bool]] = {f: [] for f in DEVICE_FLAGS}
         self._events: list[tuple[np.ndarray, bool]] = []
         self._drops = 0   # the env's drop count (0 after a reset)
+        self._intervention: list[np.ndarray] = []
+        self._policy_action: list[np.ndarray] = []
 
     def add(self, action, obs: dict, reward: float, success: bool, terminated: bool,
             tip_position, jaw_angle, flags: dict | None = None, image: dict | None = None,
-            info: dict | None = None) -> None:
+            info: dict | None = None, intervention=None, policy_action=None) -> None:
         """One step. ``info``: the step's info dict; its ``grasped`` and ``drops`` become the :data:`EVENT_FLAGS`
-        (pass it at every step or at none)."""
+        (pass it at every step or at none). ``intervention`` (n_arms bools: the operator drove the arm) and
+        ``policy_action`` (what the policy proposed) in an intervention session: at every step or at none."""
         obs, image = _split_image(obs, image)
         self._action.append(np.asarray(action, np.float32))
         for k, v in obs.items():
@@ -112,6 +128,9 @@ class TrajectoryBuilder:
             drops = int(np.sum(info.get("drops", 0)))
             self._events.append((np.atleast_1d(np.asarray(info["grasped"], bool)), drops > self._drops))
             self._drops = drops
+        if intervention is not None:
+            self._intervention.append(np.atleast_1d(np.asarray(intervention, bool)))
+            self._policy_action.append(np.asarray(policy_action, np.float32))
 
     def __len__(self) -> int:
         return len(self._action)
@@ -121,6 +140,13 @@ class TrajectoryBuilder:
         if self._events and len(self._events) == len(self._action):
             flags["grasped"] = np.stack([g for g, _ in self._events])
             flags["drop"] = np.array([d for _, d in self._events], bool)
+        policy_action = None
+        if self._intervention:
+            if len(self._intervention) != len(self._action):
+                raise ValueError(f"TrajectoryBuilder: intervention given at {len(self._intervention)} of "
+                                 f"{len(self._action)} steps; give it at every step or at none")
+            flags[INTERVENTION] = np.stack(self._intervention)
+            policy_action = np.stack(self._policy_action).reshape(len(self._action), -1)
         return Trajectory(
             observation=np.stack(self._obs["observation"]),
             achieved_goal=np.stack(self._obs["achieved_goal"]),
@@ -133,6 +159,7 @@ class TrajectoryBuilder:
             jaw_angle=np.stack(self._jaw),
             flags=flags,
             images={k: np.stack(v) for k, v in self._images.items()},
+            policy_action=policy_action,
         )
 
 

@@ -85,7 +85,10 @@ from surrol_data.datasets.schema import (
     CAMERA_VERSION,
     ENV_STATE,
     FPS,
+    INTERVENTION_ARMS,
+    IS_INTERVENTION,
     NEXT_ENV_STATE,
+    POLICY_ACTION,
     PROVENANCE_COLUMNS,
     PROVENANCE_PREFIX,
     SCHEMA_VERSION,
@@ -98,7 +101,7 @@ from surrol_data.datasets.schema import (
     package_version,
     utc_now_iso,
 )
-from surrol_data.datasets.trajectory import DEVICE_FLAGS, EVENT_FLAGS, Trajectory
+from surrol_data.datasets.trajectory import DEVICE_FLAGS, EVENT_FLAGS, INTERVENTION, Trajectory
 
 ROBOT_TYPE = "dvrk_psm"  # the default; collectors pass surrol_data.envs.names.dimension_names(env).robot_type
 VIDEO_BACKEND = "pyav"  # explicit: avoids torchcodec probing (and its 60-line warning without system ffmpeg)
@@ -462,7 +465,8 @@ class DatasetWriter:
         dg = vec("desired_goal", traj.desired_goal, T + 1, d["goal_dim"])
         tip = vec("tip_position", traj.tip_position, T + 1, 3 * d["n_arms"])
         jaw = vec("jaw_angle", traj.jaw_angle, T + 1, d["n_arms"])
-        extra = sorted(set(traj.flags) - set(DEVICE_FLAGS) - set(EVENT_FLAGS))
+        extra = sorted(set(traj.flags) - set(DEVICE_FLAGS) - set(EVENT_FLAGS)
+                       - ({INTERVENTION} if IS_INTERVENTION in self.features else set()))
         if extra:
             raise ValueError(f"Trajectory.flags {extra} are not in the dataset schema (only {list(DEVICE_FLAGS)})")
         environment = np.concatenate([ag, dg], axis=1)  # object/goal state: achieved goal, then desired goal
@@ -489,6 +493,17 @@ class DatasetWriter:
                 raise ValueError(f"{self.root} records env events but the trajectory has no {event!r} flags; build "
                                  "it with TrajectoryBuilder.add(..., info=info) at every step")
             frames[key] = vec(f"flags[{event!r}]", traj.flags[event], T, int(self.features[key]["shape"][0]), bool)
+        if IS_INTERVENTION in self.features:   # an intervention session's dataset: who acted, and the proposal
+            if traj.policy_action is None:
+                raise ValueError(f"{self.root} records interventions but the trajectory has none; build it with "
+                                 "TrajectoryBuilder.add(..., intervention=..., policy_action=...) at every step")
+            arms = vec("flags['intervention']", traj.flags[INTERVENTION], T, d["n_arms"], bool)
+            frames[INTERVENTION_ARMS] = arms
+            frames[IS_INTERVENTION] = arms.any(axis=1, keepdims=True).astype(np.float32)
+            frames[POLICY_ACTION] = vec("policy_action", traj.policy_action, T, d["act_dim"])
+        elif traj.policy_action is not None:
+            raise ValueError(f"the trajectory records interventions but {self.root} has no intervention features; "
+                             "record intervention sessions into a dataset made for them")
         cameras = d["cameras"]
         if set(traj.images) != set(cameras):
             raise ValueError(f"Trajectory.images has cameras {sorted(traj.images)}, the dataset has "

@@ -7,6 +7,8 @@ episode's device trace where the haptic session saved one), then
 * derives the **expert benchmark** as the mean over the expert operators' successful episodes of steps to
   complete, path length and errors (failed grasps + drops), as proficiency-based progression does (Gallagher
   and colleagues: the benchmark is the experienced operators' mean performance);
+* in a dataset of intervention sessions, counts per operator the takeovers from the policy and the share of frames
+  the operator drove (:mod:`surrol_data.datasets.interventions`);
 * marks each episode that meets the benchmark (success, and no worse than the benchmark on every metric) and
   each operator as *proficient* from the first of two consecutive episodes that meet it.
 
@@ -22,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from surrol_data.datasets.interventions import trajectory_interventions
 from surrol_data.datasets.reader import DatasetReader
 from surrol_data.datasets.metrics import DeviceTrace, trajectory_proficiency
 from surrol_data.evaluation.report import Column, metrics_table_markdown
@@ -41,6 +44,11 @@ ASSESS_COLUMNS = (
     Column("errors", "Errors", lambda v: f"{v:.2f}"),
     Column("meets_benchmark", "Meets benchmark", lambda v: f"{100 * v:.0f} %"),
     Column("proficient_at", "Proficient at trial", str),
+)
+# Added where the dataset holds intervention sessions: how much the operator had to step in.
+INTERVENTION_COLUMNS = (
+    Column("takeovers", "Takeovers / ep", lambda v: f"{v:.1f}"),
+    Column("intervention_share", "Operator frames", lambda v: f"{100 * v:.0f} %"),
 )
 
 
@@ -72,9 +80,13 @@ def score_episodes(reader: DatasetReader) -> pd.DataFrame:
     rows = []
     for meta, traj in zip(reader.episodes.to_dict("records"), reader.trajectories()):
         prof = trajectory_proficiency(traj, device_trace=_trace_of(reader.root, int(meta["episode_index"])))
+        counts = trajectory_interventions(traj)
         rows.append({"episode_index": int(meta["episode_index"]), "source": meta.get("source", "unknown"),
                      "skill": meta.get("skill", "unknown"), "operator_id": meta.get("operator_id", "") or "–",
-                     **prof.as_dict()})
+                     **prof.as_dict(),
+                     **({} if counts is None else {"takeovers": counts.takeovers,
+                                                   "intervention_frames": counts.intervention_frames,
+                                                   "time_to_takeover_s": counts.time_to_takeover_s})})
     frame = pd.DataFrame(rows)
     if len(frame):
         frame["errors"] = frame.apply(_errors, axis=1)
@@ -117,7 +129,10 @@ def _summary(group: pd.DataFrame) -> dict:
             "sparc": mean(ok, "sparc"), "log_dimensionless_jerk": mean(ok, "log_dimensionless_jerk"),
             "idle_time_s": mean(group, "idle_time_s"), "clutch_uses": mean(group, "clutch_uses"),
             "jaw_closures": mean(group, "jaw_closures"), "errors": mean(group, "errors"),
-            "meets_benchmark": float(group["meets_benchmark"].mean())}
+            "meets_benchmark": float(group["meets_benchmark"].mean()),
+            **({"takeovers": mean(group, "takeovers"),
+                "intervention_share": float(group["intervention_frames"].sum() / group["steps"].sum())}
+               if "takeovers" in group and group["takeovers"].notna().any() else {})}
 
 
 def assess_dataset(root: str | Path) -> Assessment:
@@ -142,6 +157,12 @@ def assessment_title(result: Assessment) -> str:
     return f"Demonstration proficiency: {result.dataset.name}"
 
 
+def assessment_columns(result: Assessment) -> tuple[Column, ...]:
+    """The table's columns: :data:`ASSESS_COLUMNS`, and :data:`INTERVENTION_COLUMNS` for intervention sessions."""
+    has = "takeovers" in result.episodes and result.episodes["takeovers"].notna().any()
+    return ASSESS_COLUMNS + INTERVENTION_COLUMNS if has else ASSESS_COLUMNS
+
+
 def assessment_rows(result: Assessment) -> list[dict]:
     """The table's rows: one per operator, then one per skill (columns :data:`ASSESS_COLUMNS`)."""
     return result.operators.to_dict("records") + result.skills.to_dict("records")
@@ -164,7 +185,8 @@ def assessment_notes(result: Assessment) -> str:
 
 
 def assessment_markdown(result: Assessment) -> str:
-    return (f"# {assessment_title(result)}\n\n{metrics_table_markdown(assessment_rows(result), ASSESS_COLUMNS)}\n"
+    table = metrics_table_markdown(assessment_rows(result), assessment_columns(result))
+    return (f"# {assessment_title(result)}\n\n{table}\n"
             f"{assessment_notes(result)}")
 
 

@@ -15,6 +15,9 @@ import numpy as np
 
 BUTTON_JAW = 1      # button 1 held: the jaw ramps closed; released: it ramps open
 BUTTON_CLUTCH = 2   # button 2 held: motion is zeroed (clutch); both held: the device drives the camera (ECM)
+# The takeover control of an intervention session (``collect --source intervene``): held, the operator drives the
+# arm and the policy's action is only recorded; released, the policy drives. The mapping ignores it.
+BUTTON_TAKEOVER = 4
 
 
 class DeviceError(RuntimeError):
@@ -25,7 +28,7 @@ class DeviceError(RuntimeError):
 class DeviceFrame:
     position_mm: np.ndarray   # (3,) stylus position in the device's own frame, millimetres
     gimbal_rad: np.ndarray    # (3,) gimbal angles, radians
-    buttons: int              # bitmask of BUTTON_JAW | BUTTON_CLUTCH
+    buttons: int              # bitmask of BUTTON_JAW | BUTTON_CLUTCH | BUTTON_TAKEOVER
     t: float                  # seconds on the device's clock
 
     def to_row(self) -> list[float]:

@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from surrol_data.collect.devices.base import BUTTON_CLUTCH, BUTTON_JAW, Device, DeviceError, DeviceFrame
+from surrol_data.collect.devices.base import BUTTON_CLUTCH, BUTTON_JAW, BUTTON_TAKEOVER, Device, DeviceError, DeviceFrame
 from surrol_data.collect.devices.rate import DEFAULT_SPEED_MM_S, DEFAULT_TURN_RAD_S, VirtualStylus
 
 
@@ -28,6 +28,7 @@ class PadLayout:
     jaw: int = 0            # A
     clutch: int = 1         # B
     deadzone: float = 0.15
+    takeover_axis: int = 5  # right trigger (an axis from -1 released to 1 pressed): held, the operator takes over
 
 
 class GamepadDevice(Device):
@@ -87,6 +88,9 @@ class GamepadDevice(Device):
         velocity = np.array([sign * self._deadzoned(js.get_axis(axis)) for axis, sign in lay.axes])
         turn = float(js.get_button(lay.turn_left)) - float(js.get_button(lay.turn_right))
         buttons = (BUTTON_JAW if js.get_button(lay.jaw) else 0) | (BUTTON_CLUTCH if js.get_button(lay.clutch) else 0)
+        # (A pad without the trigger axis has no takeover control: its layout check does not ask for one.)
+        if lay.takeover_axis < js.get_numaxes() and js.get_axis(lay.takeover_axis) > 0.5:   # half pulled (SDL reads 0 before a first pull)
+            buttons |= BUTTON_TAKEOVER
         return self.stylus.advance(velocity, turn, buttons)
 
     def _removed(self, event) -> bool:

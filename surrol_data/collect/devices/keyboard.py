@@ -9,10 +9,11 @@ Two key sources feed the same key-state logic (:class:`KeyTracker`):
 
 Layouts (SurRoL-v2's keys; directions on the endoscope image under the default camera-frame
 :class:`~surrol_data.collect.mapping.MappingSettings`): left hand ``w/s`` up/down, ``d/a`` right/left, ``e/q``
-deeper (away from you)/back towards you, ``z/x`` ±yaw, ``c`` jaw (button 1), ``v`` clutch (button 2); right hand
-``i/k``, ``l/j``, ``o/u``, ``m/,``, jaw ``n``, clutch ``b``. The keys move the virtual stylus along the device
-axes (x right, y up, z towards the user) as a hand would move a stylus. Session keys (read by the haptic session from the same tracker): ``r`` redo the attempt,
-``f`` discard it, ``Esc`` end the session.
+deeper (away from you)/back towards you, ``z/x`` ±yaw, ``c`` jaw (button 1), ``v`` clutch (button 2), ``t`` takeover
+(intervention sessions); right hand ``i/k``, ``l/j``, ``o/u``, ``m/,``, jaw ``n``, clutch ``b``, takeover ``y``. The
+keys move the virtual stylus along the device axes (x right, y up, z towards the user) as a hand would move a stylus.
+Session keys (read by the haptic session from the same tracker): ``r`` redo the attempt, ``f`` discard it, ``Esc``
+end the session; in an intervention session ``space`` held takes every arm over.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from surrol_data.collect.devices.base import BUTTON_CLUTCH, BUTTON_JAW, Device, DeviceError, DeviceFrame
+from surrol_data.collect.devices.base import BUTTON_CLUTCH, BUTTON_JAW, BUTTON_TAKEOVER, Device, DeviceError, DeviceFrame
 from surrol_data.collect.devices.rate import DEFAULT_SPEED_MM_S, DEFAULT_TURN_RAD_S, VirtualStylus
 
 
@@ -37,21 +38,23 @@ class KeyLayout:
     turn: dict[str, float]                 # key -> yaw direction
     jaw: str
     clutch: str
+    takeover: str
 
     def keys(self) -> set[str]:
-        return {*self.motion, *self.turn, self.jaw, self.clutch}
+        return {*self.motion, *self.turn, self.jaw, self.clutch, self.takeover}
 
 
 # Device axes: x right, y up, z towards the user (q / u pull the stylus towards you).
 LAYOUTS = {
     "left": KeyLayout(motion={"w": (1, 1.0), "s": (1, -1.0), "d": (0, 1.0), "a": (0, -1.0),
                               "q": (2, 1.0), "e": (2, -1.0)},
-                      turn={"z": 1.0, "x": -1.0}, jaw="c", clutch="v"),
+                      turn={"z": 1.0, "x": -1.0}, jaw="c", clutch="v", takeover="t"),
     "right": KeyLayout(motion={"i": (1, 1.0), "k": (1, -1.0), "l": (0, 1.0), "j": (0, -1.0),
                                "u": (2, 1.0), "o": (2, -1.0)},
-                       turn={"m": 1.0, ",": -1.0}, jaw="n", clutch="b"),
+                       turn={"m": 1.0, ",": -1.0}, jaw="n", clutch="b", takeover="y"),
 }
 REDO_KEY, DISCARD_KEY, QUIT_KEY, SAVE_KEY = "r", "f", "esc", "enter"
+TAKEOVER_KEY = " "   # held in an intervention session: the operator drives every arm (a Touch has no third button)
 SESSION_KEYS = (REDO_KEY, DISCARD_KEY, QUIT_KEY, SAVE_KEY)
 _ESCAPES = {"\x1b[A": "up", "\x1b[B": "down", "\x1b[C": "right", "\x1b[D": "left"}
 
@@ -220,7 +223,8 @@ class KeyboardDevice(Device):
             if key in held:
                 velocity[axis] += sign
         turn = sum(sign for key, sign in lay.turn.items() if key in held)
-        buttons = (BUTTON_JAW if lay.jaw in held else 0) | (BUTTON_CLUTCH if lay.clutch in held else 0)
+        buttons = ((BUTTON_JAW if lay.jaw in held else 0) | (BUTTON_CLUTCH if lay.clutch in held else 0)
+                   | (BUTTON_TAKEOVER if lay.takeover in held else 0))
         return self.stylus.advance(velocity, turn, buttons)
 
     def settings(self) -> dict:

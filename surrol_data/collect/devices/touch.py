@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from surrol_data.collect.devices.base import Device, DeviceError, DeviceFrame
+from surrol_data.collect.devices.base import BUTTON_TAKEOVER, Device, DeviceError, DeviceFrame
 
 LIBRARY_ENV = "SURROL_LIBHD"
 INSTALL_HINT = ("install the OpenHaptics SDK for Linux (3D Systems 'OpenHaptics Developer Edition', which "
@@ -216,7 +216,7 @@ class TouchDevice(Device):
             raise DeviceError(f"Touch device {self.side or 'default'} stopped answering (HD error 0x{code:04x} "
                               f"{text}, internal {internal}): check its USB/Ethernet cable and power")
         return DeviceFrame(np.array(self._pos_buf[:], dtype=np.float64), np.array(self._gim_buf[:], dtype=np.float64),
-                           int(self._buttons.value) & 0b11, time.monotonic())
+                           _buttons(int(self._buttons.value)), time.monotonic())
 
     def disconnect(self) -> None:
         if self._handle is not None and self._hd is not None:
@@ -226,3 +226,9 @@ class TouchDevice(Device):
     def settings(self) -> dict:
         return {"side": self.side or "default", "config_name": (self.config or b"").decode(),
                 "library": self._hd.where if self._hd else str(self.library or "")}
+
+
+def _buttons(hd_buttons: int) -> int:
+    """libHD's button bits → the frame's: buttons 1 and 2 as they are, a third button (HD_DEVICE_BUTTON_3, on
+    styli that have one) as the takeover control."""
+    return (hd_buttons & 0b11) | (BUTTON_TAKEOVER if hd_buttons & 0b100 else 0)

@@ -202,6 +202,7 @@ class SimulatedOperator(Device):
         if marker is not self._marker:
             self._marker = marker
             self._begin_episode(self._obs, view.plan())
+            self._reset_obs, self._takeovers = self._obs, 0
             if view.holds_at_start(info):
                 # The task starts with the object in this hand: button 1 is held from the first frame.
                 self._jaw_closed, self._jaw_change_s = True, -np.inf
@@ -230,10 +231,10 @@ class SimulatedOperator(Device):
         return DeviceFrame(position_mm=pose[:3].copy(), gimbal_rad=gimbal, buttons=buttons, t=self._episode_start + t)
 
     # ------------------------------------------------------------------ episode set-up
-    def _begin_episode(self, obs: dict, plan: list[dict]) -> None:
+    def _begin_episode(self, obs: dict, plan: list[dict], salt: tuple[int, ...] = ()) -> None:
         # (The arm too: the two hands of one person on one episode move independently.)
         self._rng = np.random.default_rng(np.random.SeedSequence([self.seed, self._identity, self.arm,
-                                                                  *episode_key(self.env)]))
+                                                                  *episode_key(self.env), *salt]))
         p = self.params
         start = self._rng.normal(0.0, 1.0, POSE_DIM) * np.array([5.0, 5.0, 3.0, 0.05])   # where the hand rests
         self._episode_start, self._step = self._clock, 0
@@ -259,6 +260,41 @@ class SimulatedOperator(Device):
         self._events = []
         # The first look at a new scene takes longer than a reaction.
         self._next_decision_s = 2.0 * self._reaction()
+
+    def take_over(self, obs: dict, info: dict, hand_pose: np.ndarray) -> None:
+        """Start driving from the scene as it is now: a person supervising a policy takes the stylus over.
+
+        ``hand_pose`` is where the hand rests on the stylus (the device frames read so far showed it there), so the
+        tool does not jump. The plan is the task's, from the step the scene calls for: holding the object, the step
+        after the grasp; otherwise (re-)grasp the object where it now lies; a task without an object, its first step.
+        Every draw comes from the episode's key and the number of takeovers so far: the same scene and person give
+        the same takeover."""
+        if self._team is not None:
+            raise DeviceError("the simulated supervisor takes over one-arm tasks only (the two hands of one person "
+                              "share a plan that a policy's rollout does not follow)")
+        if self._obs is None:
+            raise DeviceError("take_over before the operator has seen the scene: call observe(obs, info) first")
+        self._takeovers += 1
+        view = self.view
+        self._obs, self._info = view.observation(obs), view.info(info)
+        self._begin_episode(self._reset_obs, view.plan(), salt=(self._takeovers,))
+        self._hand = Hand(np.asarray(hand_pose, np.float64), DEVICE_HALF_RANGE, self.params.motor_noise(), self._rng)
+        # The person has been watching: one reaction to the trouble seen, not a first look at a new scene.
+        self._next_decision_s = self._reaction()
+        closes = [i for i, g in enumerate(self._plan) if g.jaw_closed and (i == 0 or not self._plan[i - 1].jaw_closed)]
+        if not (view.has_object and view.uses_jaw and closes):
+            return
+        state = np.asarray(self._obs["observation"], np.float64)
+        start, close = self._segment_ending_at(closes[0])
+        if self._info.get("grasped", False):      # the policy holds it: carry on from the step after the grasp
+            self._index = min(close + 1, len(self._plan) - 1)
+            self._jaw_closed, self._jaw_change_s = True, -np.inf
+            self._holding, self._grasp_segment = True, (start, close)
+            self._hold_height, self._hold_tip = float(state[2]), state[_TIP].copy()
+            return
+        point, yaw = state[_OBJECT_POINT], float(state[_OBJECT_YAW])
+        self._plan[start:close + 1] = [g.moved_with_object(point, yaw) for g in self._plan[start:close + 1]]
+        self._index = start
 
     def _subgoals(self, obs: dict, plan: list[dict]) -> list[_Subgoal]:
         state = np.asarray(obs["observation"], np.float64)
