@@ -3,7 +3,8 @@
 Entity layout, one subtree per episode label ``<L>`` (labels are made path-safe, see :func:`entity_label`)::
 
     world                          right-hand Z-up, metres (static view coordinates)
-    world/<L>/arm<i>/path          full tool-tip path (static)
+    world/<L>/arm<i>/path          full tool-tip path (static); in an intervention session each step's segment in
+                                   the label colour where the policy drove, in OPERATOR_COLOUR where the operator did
     world/<L>/arm<i>/trail         tool-tip path up to the current step (grows over time)
     world/<L>/arm<i>/tip           current tool-tip point
     world/<L>/arm<i>/instrument    the PSM instrument: shaft through the RCM, wrist, two jaw blades at the
@@ -12,7 +13,8 @@ Entity layout, one subtree per episode label ``<L>`` (labels are made path-safe,
     world/<L>/goal                 goal marker(s)
     plots/<L>/action               action channels dx, dy, dz, dyaw, jaw (per arm)
     plots/<L>/jaw_angle            jaw angle per arm, rad
-    plots/<L>/flags                device flags (clutch, jaw_button) as 0/1
+    plots/<L>/flags                device flags (clutch, jaw_button; intervention: the operator drove) as 0/1
+    plots/<L>/policy_action        intervention sessions: the policy's proposed action beside the executed one
     plots/<L>/reward, plots/<L>/success
     camera/<L>/<camera>            camera images
     provenance/<L>                 markdown document: provenance and outcome
@@ -40,7 +42,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from surrol_data.datasets.trajectory import DEVICE_FLAGS, Trajectory
+from surrol_data.datasets.trajectory import DEVICE_FLAGS, INTERVENTION, Trajectory
 from surrol_data.envs.units import CONTROL_PERIOD_S
 from surrol_data.datasets.metrics import trajectory_proficiency
 
@@ -52,6 +54,9 @@ ACTION_NAMES = ("dx", "dy", "dz", "dyaw", "jaw")
 # Distinct colours per label (matplotlib's tab10 values), so sources are told apart in the shared 3-D view.
 _PALETTE = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
             (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)]
+
+# The path where the operator drove, in an intervention session: a colour of no label (gold).
+OPERATOR_COLOUR = (255, 200, 0)
 
 Item = tuple[str, Trajectory, Mapping]
 
@@ -133,7 +138,11 @@ def make_blueprint(items: Sequence[Item]) -> rrb.Blueprint:
     cameras = []
     for name, (_, traj, _) in zip(names, items):
         per_label.append(rrb.Vertical(
-            rrb.TimeSeriesView(origin=f"plots/{name}/action", name=f"{name}: actions"),
+            rrb.TimeSeriesView(origin=f"plots/{name}/action", name=f"{name}: actions")
+            if traj.policy_action is None else
+            rrb.TimeSeriesView(origin=f"plots/{name}",
+                               contents=[f"+ plots/{name}/action/**", f"+ plots/{name}/policy_action/**"],
+                               name=f"{name}: actions (executed, and the policy's)"),
             rrb.TimeSeriesView(origin=f"plots/{name}",
                                contents=[f"+ plots/{name}/jaw_angle/**", f"+ plots/{name}/flags/**"],
                                name=f"{name}: jaw angle (rad) & device flags"),
@@ -198,7 +207,13 @@ def _log_episode(rec: rr.RecordingStream, name: str, label: str, traj: Trajector
         base = f"world/{name}/arm{arm}"
         path = tip[:, arm, :]
         c = _shade(color, arm)
-        rec.log(f"{base}/path", rr.LineStrips3D([path], colors=[c], radii=[0.0004]), static=True)
+        if INTERVENTION in traj.flags and T:   # one segment per step, coloured by who drove the arm
+            who = np.asarray(traj.flags[INTERVENTION], bool).reshape(T, -1)[:, arm]
+            segments = [path[t:t + 2] for t in range(T)]
+            rec.log(f"{base}/path", rr.LineStrips3D(segments, colors=[OPERATOR_COLOUR if w else c for w in who],
+                                                    radii=[0.0004]), static=True)
+        else:
+            rec.log(f"{base}/path", rr.LineStrips3D([path], colors=[c], radii=[0.0004]), static=True)
         starts = np.zeros(T + 1, int) if trail_length is None else np.maximum(0, np.arange(T + 1) - trail_length + 1)
         trails = [path[s:t + 1] for t, s in enumerate(starts)]
         rec.log(f"{base}/trail", rr.LineStrips3D.from_fields(colors=[c], radii=[0.0008]), static=True)
@@ -232,6 +247,13 @@ def _log_episode(rec: rr.RecordingStream, name: str, label: str, traj: Trajector
     act = np.asarray(traj.action, np.float64)
     rec.log(f"plots/{name}/action", rr.SeriesLines(names=_action_names(act.shape[1], tip.shape[1])), static=True)
     rec.send_columns(f"plots/{name}/action", indexes=actions, columns=rr.Scalars.columns(scalars=act))
+    if traj.policy_action is not None:
+        proposed = np.asarray(traj.policy_action, np.float64)
+        rec.log(f"plots/{name}/policy_action",
+                rr.SeriesLines(names=[f"policy {n}" for n in _action_names(proposed.shape[1], tip.shape[1])]),
+                static=True)
+        rec.send_columns(f"plots/{name}/policy_action", indexes=actions,
+                         columns=rr.Scalars.columns(scalars=proposed))
 
     jaw = np.asarray(traj.jaw_angle, np.float64).reshape(T + 1, -1)
     rec.log(f"plots/{name}/jaw_angle", rr.SeriesLines(names=[f"jaw angle arm{i}" for i in range(jaw.shape[1])]),
