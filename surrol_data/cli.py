@@ -94,6 +94,18 @@ def _working(message: str):
     return Console(stderr=True).status(message)
 
 
+def _supervised_policy(spec: Optional[str]) -> tuple:
+    """(the policy, what provenance records of it) of an intervention session's ``--policy``; (None, None) without."""
+    if spec is None:
+        return None, None
+    from surrol_data.algos.policies import describe_policy, load_policy
+
+    try:
+        return load_policy(spec), describe_policy(spec)
+    except (ValueError, FileNotFoundError) as e:
+        _fail(f"--policy: {e}")
+
+
 def _camera_size(camera: bool, camera_size: Optional[str]) -> Optional[tuple[int, int]]:
     if camera_size is not None and not camera:
         camera = True  # --camera-size alone asks for the camera too
@@ -171,14 +183,7 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
         from surrol_data.collect.haptic_source import collect_haptic, parse_mapping
         from surrol_data.collect.script_source import camera_kwargs
 
-        acting, policy_info = None, None
-        if policy is not None:
-            from surrol_data.algos.policies import describe_policy, load_policy
-
-            try:
-                acting, policy_info = load_policy(policy), describe_policy(policy)
-            except (ValueError, FileNotFoundError) as e:
-                _fail(f"--policy: {e}")
+        acting, policy_info = _supervised_policy(policy)
         try:
             result = collect_haptic(task, episodes, out, device=device, operator_id=operator_id, skill=skill,
                                     sides=side or None, mapping=parse_mapping(mapping or []), trace=trace, seed=seed,
@@ -214,6 +219,8 @@ def gui(out: Path = typer.Option(Path("gui_sessions"), help="Folder for the sess
         autoplay: Optional[int] = typer.Option(None, min=1, help="Play --task at once and exit after this many "
                                                "saved episodes (demos, smoke tests)."),
         screenshot: Optional[Path] = typer.Option(None, help="Write a PNG of the window when it closes."),
+        policy: Optional[str] = typer.Option(None, help="A policy that acts while you supervise (a checkpoint, "
+                                             "lerobot:DIR or 'oracle'): hold 'take over' to drive."),
         offscreen: Optional[bool] = typer.Option(None, "--offscreen/--onscreen", help="Draw into an offscreen "
                                                  "buffer (default: when there is no display).")):
     """The training GUI: pick a task, press play, operate with any device; every attempt is recorded with provenance."""
@@ -238,8 +245,9 @@ def gui(out: Path = typer.Option(Path("gui_sessions"), help="Folder for the sess
         _fail("--autoplay needs --task")
     from surrol_data.gui.app import TrainingApp
 
+    acting, policy_info = _supervised_policy(policy)
     try:
-        window = TrainingApp(out, offscreen=offscreen, seed=seed)
+        window = TrainingApp(out, offscreen=offscreen, seed=seed, policy=acting, policy_info=policy_info)
     except RendererUnavailable as e:
         _fail(str(e))
     window.set_session(device, skill, operator_id)

@@ -93,8 +93,15 @@ def test_is_intervention_is_true_exactly_on_the_takeover_frames(reach_session):
         policy_frames = ~takeover
         np.testing.assert_array_equal(traj.action[policy_frames], traj.policy_action[policy_frames])
         np.testing.assert_array_equal(traj.policy_action, np.zeros_like(traj.policy_action))   # the still policy
+        # The mapping of the recorded hand; at a takeover the jaw command goes on from the one last executed.
         mapper = ActionMapper(MappingSettings(**trace.meta["mapping"][0]))
-        operator = np.array([mapper(DeviceFrame.from_row(row)).arm for row in trace.frames[0]])
+        operator, last_jaw = [], mapper.jaw
+        for t, row in enumerate(trace.frames[0]):
+            if takeover[t] and (t == 0 or not takeover[t - 1]):
+                mapper.jaw = float(last_jaw)
+            operator.append(mapper(DeviceFrame.from_row(row)).arm)
+            last_jaw = traj.action[t, 4]
+        operator = np.array(operator)
         np.testing.assert_allclose(traj.action[takeover], operator[takeover], atol=1e-6)
         assert np.abs(traj.action[takeover][:, :3]).max() > 0.05      # the operator really moved the tool
 
@@ -126,6 +133,9 @@ def test_provenance_names_the_policy_the_operator_and_the_counts(reach_session):
     assert settings["intervention"]["intervention_frames"] == counts.intervention_frames
     assert settings["supervisor_events"][0][1] == "takeover:no-progress"
     assert json.loads(row["operator_params"])["supervisor"]["patience_s"] == PATIENCE_S
+    from surrol_data.datasets.validate import validate_dataset
+
+    assert validate_dataset(out) == []
 
 
 def test_info_and_assess_report_takeovers_per_operator(reach_session, tmp_path):
@@ -185,7 +195,7 @@ class _ScriptedHand(Device):
 def test_two_arm_takeover_is_per_arm(tmp_path):
     """On a bimanual task each arm has its own takeover control: the arm taken over executes its operator's action,
     the other the policy's, and the dataset records each arm's flag."""
-    policy = constant_policy(tmp_path / "p.pt", [0.3, 0, 0, 0, 1, -0.3, 0, 0, 0, 1], obs_dim=35, goal_dim=6)
+    policy = constant_policy(tmp_path / "p.pt", [0.3, 0, 0, 0, 1, -0.3, 0, 0, 0, 1], obs_dim=35)
     takeover = [set(range(3, 8)), set(range(6, 12))]
     devices = [_ScriptedHand(t) for t in takeover]
     out = tmp_path / "bi"
@@ -296,3 +306,54 @@ def test_rerun_colours_the_path_by_who_acted(tmp_path, reach_session):
     operator = colours == int.from_bytes(bytes([*OPERATOR_COLOUR, 255]), "big")
     np.testing.assert_array_equal(operator, traj.flags["intervention"][:, 0])
     assert any(ch.entity_path == "/plots/supervised/policy_action" for ch in chunks)
+
+
+def test_gui_take_over_button_hands_the_arm_to_the_keyboard_and_back(tmp_path):
+    """The GUI with a policy: holding *take over* drives the arm from the keys; the HUD says who acts; the dataset's
+    flag is set exactly while the button was held (as the session saw it)."""
+    from surrol_data.render.display import unavailable_reason
+
+    if unavailable_reason() is not None:
+        pytest.skip(str(unavailable_reason()))
+    from direct.gui.DirectGui import DGG
+
+    from surrol_data.gui.app import TrainingApp
+    from surrol_data.gui.keys import WindowKeys
+
+    still = constant_policy(tmp_path / "still.pt", [0, 0, 0, 0, 0], obs_dim=7)
+    app = TrainingApp(out=tmp_path, offscreen=True, size=(480, 270), policy=load_policy(still),
+                      policy_info=describe_policy(still))
+    app.choose_task(REACH)
+    app.set_session("keyboard", "novice", "k1")
+    send, take = app.base.messenger.send, app.buttons["take over"]
+    shown, clicks = {}, set()     # what the HUD said at each step; the clicks made
+
+    def hand(task):
+        shown.setdefault(app.hud.steps, app.hud.operator)
+        if app.hud.steps == 3 and "press" not in clicks:
+            clicks.add("press")
+            send(DGG.B1PRESS + take.guiId, [None])
+            send(WindowKeys.DOWN_EVENT, ["d"])
+        elif app.hud.steps == 9 and "release" not in clicks:
+            clicks.add("release")
+            send(DGG.B1RELEASE + take.guiId, [None])
+        elif app.hud.steps == 12 and "save" not in clicks:
+            clicks.add("save")
+            app.buttons["save"].commandFunc(None)       # save the attempt as it stands
+        elif app.hud.attempt == 2 and app.hud.steps == 2:
+            app.buttons["exit"].commandFunc(None)
+        return task.cont
+
+    app.base.taskMgr.add(hand, "hand")
+    app.exit_after_session = True
+    app.play()
+    app.run()
+    assert app.last_error is None
+    assert shown[2] is False and shown[6] is True and shown[11] is False   # the HUD says who acts
+    root = tmp_path / f"{REACH}_intervene"
+    traj = DatasetReader(root).trajectory(0)
+    flags = traj.flags["intervention"][:, 0]
+    run = np.flatnonzero(flags)
+    assert len(run) >= 4 and np.array_equal(run, np.arange(run[0], run[-1] + 1))   # one takeover, held throughout
+    assert 3 <= run[0] <= 5 and 9 <= run[-1] + 1 <= 11
+    assert np.abs(traj.action[flags, :3]).max() > 0.1 and not traj.action[~flags, :4].any()

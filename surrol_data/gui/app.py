@@ -10,6 +10,10 @@ provenance as the CLI) into ``<out>/<task>``; the session calls back after every
 draws a frame and handles its events then. Redo / discard / save / exit press the session keys
 (``r`` / ``f`` / ``Enter`` / ``Esc``) through the window's key source, so the keyboard and the buttons
 do the same. Without a display the window is an offscreen buffer (tests, screenshots).
+
+Given a policy (``surrol-data gui --policy``), play runs an intervention session instead (``collect --source
+intervene``) into ``<out>/<task>_intervene``: the policy acts, and holding the *take over* button (or ``space``) hands
+the arms to the operator's device until it is released; the HUD says who acts.
 """
 
 from __future__ import annotations
@@ -20,7 +24,7 @@ from pathlib import Path
 import gymnasium as gym
 
 import surrol_data.envs  # noqa: F401  (registers the tasks)
-from surrol_data.collect.devices.keyboard import DISCARD_KEY, QUIT_KEY, REDO_KEY, SAVE_KEY
+from surrol_data.collect.devices.keyboard import DISCARD_KEY, QUIT_KEY, REDO_KEY, SAVE_KEY, TAKEOVER_KEY
 from surrol_data.collect.haptic_source import SKILLS, has_display
 from surrol_data.envs import TASKS, env_id
 from surrol_data.gui.hud import Hud
@@ -47,7 +51,7 @@ class TrainingApp:
     """The GUI; ``offscreen`` (default: when there is no display) draws into a buffer instead of a window."""
 
     def __init__(self, out: str | Path = "gui_sessions", offscreen: bool | None = None,
-                 size: tuple[int, int] = WINDOW_SIZE, seed: int = 0):
+                 size: tuple[int, int] = WINDOW_SIZE, seed: int = 0, policy=None, policy_info: dict | None = None):
         display.configure()
         from panda3d.core import loadPrcFileData
 
@@ -67,6 +71,7 @@ class TrainingApp:
         self.size = size
         self.out = Path(out)
         self.seed = seed
+        self.policy, self.policy_info = policy, policy_info
         self.task: str | None = None
         self.device, self.skill, self.operator_id = "keyboard", "unknown", ""
         self.hud = Hud()
@@ -167,7 +172,16 @@ class TrainingApp:
             "exit": DirectButton(text="exit", pos=(left + 1.24, 0, row2), command=self.request_exit,
                                  frameColor=(0.55, 0.18, 0.15, 1), **button),
         }
-        self.status = DirectLabel(text="choose a task", pos=(left + 1.45, 0, row2), **label)
+        if self.policy is not None:   # held: the operator drives; released: the policy does
+            from direct.gui.DirectGui import DGG
+
+            take = DirectButton(text="take over", pos=(left + 1.52, 0, row2), frameColor=(0.6, 0.45, 0.05, 1),
+                                **button)
+            take.bind(DGG.B1PRESS, lambda _event: self.keys.hold(TAKEOVER_KEY, True))
+            take.bind(DGG.B1RELEASE, lambda _event: self.keys.hold(TAKEOVER_KEY, False))
+            self.buttons["take over"] = take
+        status_x = left + (1.8 if self.policy is not None else 1.45)
+        self.status = DirectLabel(text="choose a task", pos=(status_x, 0, row2), **label)
 
     def _build_hud(self) -> None:
         from direct.gui.OnscreenText import OnscreenText
@@ -315,7 +329,7 @@ class TrainingApp:
         from surrol_data.collect.devices.keyboard import KeyTracker
         from surrol_data.collect.haptic_source import collect_haptic
 
-        task, out = self.task, self.out / self.task
+        task, out = self.task, self.out / (self.task if self.policy is None else f"{self.task}_intervene")
         self.last_task = task
         skill = "expert" if self.device == "operator" and self.skill == "unknown" else self.skill
         self._session_running = True
@@ -330,7 +344,8 @@ class TrainingApp:
                 task, self.session_episodes, out, device=self.device, operator_id=self.operator_id or "anonymous",
                 skill=skill, seed=self.seed, keep_failures=True, append=(out / "meta" / "info.json").exists(),
                 gui=False, progress=False, command=f"surrol-data gui --out {self.out}", key_tracker=tracker,
-                on_step=self._on_step, env_kwargs={"render_mode": "rgb_array"}, max_attempts=SESSION_EPISODES)
+                on_step=self._on_step, env_kwargs={"render_mode": "rgb_array"}, max_attempts=SESSION_EPISODES,
+                policy=self.policy, policy_info=self.policy_info)
             self.status["text"] = f"saved {self.last_result.kept} episode(s)"
         except (ValueError, RuntimeError, FileExistsError) as e:   # DeviceError is a RuntimeError
             self.last_error = str(e) if not isinstance(e, DeviceError) else f"device: {e}"

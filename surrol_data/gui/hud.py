@@ -18,6 +18,7 @@ class Hud:
     path_m: float = 0.0
     jaw_closed: bool = False
     clutch: bool = False
+    operator: bool | None = None    # an intervention session: the operator drives (True) or the policy (False)
     _last_tip: np.ndarray | None = field(default=None, repr=False)
 
     def start_attempt(self) -> None:
@@ -38,6 +39,7 @@ class Hud:
         self.success = self.success or bool(info["is_success"])
         self.jaw_closed = bool(flags.get("jaw_button", False))
         self.clutch = bool(flags.get("clutch", False))
+        self.operator = None if "operator" not in flags else bool(flags["operator"])
 
     @property
     def time_s(self) -> float:
@@ -45,7 +47,10 @@ class Hud:
         return self.steps * CONTROL_PERIOD_S
 
     def lines(self) -> list[str]:
-        return [f"{self.task}   attempt {self.attempt}",
-                f"time {self.time_s:5.1f} s   path {100 * self.path_m:5.1f} cm",
-                f"success {'YES' if self.success else 'no'}",
-                f"jaw {'closed' if self.jaw_closed else 'open'}   clutch {'ON' if self.clutch else 'off'}"]
+        lines = [f"{self.task}   attempt {self.attempt}",
+                 f"time {self.time_s:5.1f} s   path {100 * self.path_m:5.1f} cm",
+                 f"success {'YES' if self.success else 'no'}",
+                 f"jaw {'closed' if self.jaw_closed else 'open'}   clutch {'ON' if self.clutch else 'off'}"]
+        if self.operator is not None:
+            lines.append("YOU DRIVE" if self.operator else "the policy acts (hold take over)")
+        return lines

@@ -42,6 +42,10 @@ class WindowKeys:
         self._events.append(KeyEvent(key, True))
         self._events.append(KeyEvent(key, False))
 
+    def hold(self, key: str, down: bool) -> None:
+        """``key`` pressed (``down``) or released: what holding a button such as *take over* means."""
+        self._events.append(KeyEvent(key, down))
+
     def start(self) -> None:
         self._events.clear()
 
