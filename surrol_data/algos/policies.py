@@ -96,6 +96,6 @@ def _demo_provenance(root, episodes: list[int]) -> dict:
     counts = rows.groupby(keys).size() if keys else None
     return {"demo_sources": [{**dict(zip(keys, key if isinstance(key, tuple) else (key,), strict=True)),
                               "episodes": int(n)} for key, n in counts.items()] if counts is not None else [],
-            # One hash of the demos' content hashes (in episode order): the same demo set, whatever copy it is read from.
+            # One hash of the demos' content hashes (in episode order): the same demos give it from any copy.
             "demo_set_hash": hashlib.sha256(" ".join(str(h) for h in rows["content_hash"]).encode()).hexdigest()[:32]
             if "content_hash" in rows.columns else ""}

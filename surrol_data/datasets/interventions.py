@@ -76,6 +76,7 @@ def operator_interventions(episodes: pd.DataFrame, by: list[str]) -> list[dict]:
         groups.append({**dict(zip(by, key, strict=True)), "episodes": int(len(rows)),
                        "takeovers": int(rows["takeovers"].sum()),
                        "takeovers_per_episode": float(rows["takeovers"].mean()),
-                       "intervention_share": float(rows["intervention_frames"].sum() / max(int(rows["frames"].sum()), 1)),
+                       "intervention_share": float(rows["intervention_frames"].sum()
+                                                   / max(int(rows["frames"].sum()), 1)),
                        "time_to_takeover_s": float(first.mean()) if len(first) else math.nan})
     return groups

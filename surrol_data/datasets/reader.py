@@ -23,8 +23,8 @@ import pyarrow.parquet as pq
 from surrol_data.datasets.errors import DatasetError
 from surrol_data.datasets.schema import (
     ENV_STATE,
-    INTERVENTION_FEATURES,
     INTERVENTION_ARMS,
+    INTERVENTION_FEATURES,
     NEXT_ENV_STATE,
     POLICY_ACTION,
     PROVENANCE_PREFIX,

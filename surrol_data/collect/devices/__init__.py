@@ -20,7 +20,8 @@ from pathlib import Path
 
 from typing import TYPE_CHECKING
 
-from surrol_data.collect.devices.base import BUTTON_CLUTCH, BUTTON_JAW, BUTTON_TAKEOVER, Device, DeviceError, DeviceFrame
+from surrol_data.collect.devices.base import (BUTTON_CLUTCH, BUTTON_JAW, BUTTON_TAKEOVER, Device, DeviceError,
+                                              DeviceFrame)
 
 if TYPE_CHECKING:   # mapping imports devices.base, so importing it here at run time would be circular
     from surrol_data.collect.mapping import MappingSettings
@@ -29,7 +30,8 @@ DEVICE_NAMES = ("touch", "keyboard", "gamepad", "spacemouse", "replay", "operato
 HUMAN_DEVICES = ("touch", "keyboard", "gamepad", "spacemouse")   # paced in real time, may show a GUI
 SIDES = ("left", "right")
 
-__all__ = ["BUTTON_CLUTCH", "BUTTON_JAW", "BUTTON_TAKEOVER", "DEVICE_NAMES", "Device", "DeviceError", "DeviceFrame", "HUMAN_DEVICES",
+__all__ = ["BUTTON_CLUTCH", "BUTTON_JAW", "BUTTON_TAKEOVER",
+           "DEVICE_NAMES", "Device", "DeviceError", "DeviceFrame", "HUMAN_DEVICES",
            "open_device"]
 
 

@@ -14,7 +14,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from surrol_data.collect.devices.base import BUTTON_CLUTCH, BUTTON_JAW, BUTTON_TAKEOVER, Device, DeviceError, DeviceFrame
+from surrol_data.collect.devices.base import (BUTTON_CLUTCH, BUTTON_JAW, BUTTON_TAKEOVER, Device, DeviceError,
+                                              DeviceFrame)
 from surrol_data.collect.devices.rate import DEFAULT_SPEED_MM_S, DEFAULT_TURN_RAD_S, VirtualStylus
 
 
@@ -89,7 +90,8 @@ class GamepadDevice(Device):
         turn = float(js.get_button(lay.turn_left)) - float(js.get_button(lay.turn_right))
         buttons = (BUTTON_JAW if js.get_button(lay.jaw) else 0) | (BUTTON_CLUTCH if js.get_button(lay.clutch) else 0)
         # (A pad without the trigger axis has no takeover control: its layout check does not ask for one.)
-        if lay.takeover_axis < js.get_numaxes() and js.get_axis(lay.takeover_axis) > 0.5:   # half pulled (SDL reads 0 before a first pull)
+        # Half pulled: SDL reads 0 before a trigger's first pull, so "above 0" would read an untouched one as held.
+        if lay.takeover_axis < js.get_numaxes() and js.get_axis(lay.takeover_axis) > 0.5:
             buttons |= BUTTON_TAKEOVER
         return self.stylus.advance(velocity, turn, buttons)
 

@@ -28,7 +28,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from surrol_data.collect.devices.base import BUTTON_CLUTCH, BUTTON_JAW, BUTTON_TAKEOVER, Device, DeviceError, DeviceFrame
+from surrol_data.collect.devices.base import (BUTTON_CLUTCH, BUTTON_JAW, BUTTON_TAKEOVER, Device, DeviceError,
+                                              DeviceFrame)
 from surrol_data.collect.devices.rate import DEFAULT_SPEED_MM_S, DEFAULT_TURN_RAD_S, VirtualStylus
 
 

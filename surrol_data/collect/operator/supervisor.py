@@ -47,7 +47,8 @@ class Supervisor(Device):
 
     name = "simulated-operator"
 
-    def __init__(self, operator: SimulatedOperator, patience_s: float = PATIENCE_S, max_hand_backs: int = MAX_HAND_BACKS):
+    def __init__(self, operator: SimulatedOperator, patience_s: float = PATIENCE_S,
+                 max_hand_backs: int = MAX_HAND_BACKS):
         if not isinstance(operator, SimulatedOperator):
             raise TypeError(f"Supervisor wraps a SimulatedOperator, got {type(operator).__name__}")
         self.operator = operator
@@ -151,7 +152,8 @@ class Supervisor(Device):
         if view.kind == "camera":
             return float(np.linalg.norm(state[:3]))
         o = view.observation(self._obs)
-        gap = float(np.linalg.norm(np.asarray(o["achieved_goal"], np.float64) - np.asarray(o["desired_goal"], np.float64)))
+        gap = float(np.linalg.norm(np.asarray(o["achieved_goal"], np.float64)
+                                   - np.asarray(o["desired_goal"], np.float64)))
         if view.has_object and view.uses_jaw and not info.get("grasped", False):
             gap += float(np.linalg.norm(state[13:16] - state[0:3]))
         return gap
