@@ -10,6 +10,7 @@ import hashlib
 import json
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch
@@ -21,13 +22,14 @@ from surrol_data.algos.normalizer import Normalizer
 from surrol_data.algos.policies import describe_policy, load_policy
 from surrol_data.cli import app
 from surrol_data.collect.devices import BUTTON_TAKEOVER, Device, DeviceFrame
-from surrol_data.collect.devices.trace import read_trace, trace_path
+from surrol_data.collect.devices.trace import mapping_from_dict, read_trace, trace_path
 from surrol_data.collect.haptic_source import collect_haptic
-from surrol_data.collect.mapping import ActionMapper, MappingSettings
+from surrol_data.collect.mapping import ActionMapper, view_to_action
 from surrol_data.collect.operator.supervisor import PATIENCE_S
 from surrol_data.datasets.interventions import intervention_counts
 from surrol_data.datasets.reader import DatasetReader
 from surrol_data.datasets.schema import IS_INTERVENTION, POLICY_ACTION
+from surrol_data.envs import env_id
 
 REACH = "NeedleReach"     # 7-D observation, 3-D goal, no object: a supervised episode takes seconds
 
@@ -93,13 +95,18 @@ def test_is_intervention_is_true_exactly_on_the_takeover_frames(reach_session):
         policy_frames = ~takeover
         np.testing.assert_array_equal(traj.action[policy_frames], traj.policy_action[policy_frames])
         np.testing.assert_array_equal(traj.policy_action, np.zeros_like(traj.policy_action))   # the still policy
-        # The mapping of the recorded hand; at a takeover the jaw command goes on from the one last executed.
-        mapper = ActionMapper(MappingSettings(**trace.meta["mapping"][0]))
+        # The mapping of the recorded hand (in the frame of the task's fixed endoscope); at a takeover the jaw
+        # command goes on from the one last executed.
+        mapper = ActionMapper(mapping_from_dict(trace.meta["mapping"][0]))
+        env = gym.make(env_id(REACH))
+        env.reset(seed=int(reader.episodes.loc[ep, "seed"]))
+        view = view_to_action(env, 0)
+        env.close()
         operator, last_jaw = [], mapper.jaw
         for t, row in enumerate(trace.frames[0]):
             if takeover[t] and (t == 0 or not takeover[t - 1]):
                 mapper.jaw = float(last_jaw)
-            operator.append(mapper(DeviceFrame.from_row(row)).arm)
+            operator.append(mapper(DeviceFrame.from_row(row), view).arm)
             last_jaw = traj.action[t, 4]
         operator = np.array(operator)
         np.testing.assert_allclose(traj.action[takeover], operator[takeover], atol=1e-6)
