@@ -333,21 +333,24 @@ def test_gui_take_over_button_hands_the_arm_to_the_keyboard_and_back(tmp_path):
     app.choose_task(REACH)
     app.set_session("keyboard", "novice", "k1")
     send, take = app.base.messenger.send, app.buttons["take over"]
-    shown, clicks = {}, set()     # what the HUD said at each step; the clicks made
+    shown, clicks = {}, {}        # what the HUD said at each step seen; the step of each click
+    # Frames and env steps are not locked together (a quiet machine draws several steps between two of this task's
+    # calls), so each click happens at the first frame at or after its step, and the checks use the steps it happened.
 
     def hand(task):
-        shown.setdefault(app.hud.steps, app.hud.operator)
-        if app.hud.steps == 3 and "press" not in clicks:
-            clicks.add("press")
+        if app.hud.attempt == 1:
+            shown.setdefault(app.hud.steps, app.hud.operator)
+        if app.hud.steps >= 3 and "press" not in clicks:
+            clicks["press"] = app.hud.steps
             send(DGG.B1PRESS + take.guiId, [None])
             send(WindowKeys.DOWN_EVENT, ["d"])
-        elif app.hud.steps == 9 and "release" not in clicks:
-            clicks.add("release")
+        elif app.hud.steps >= clicks.get("press", 1 << 30) + 6 and "release" not in clicks:
+            clicks["release"] = app.hud.steps
             send(DGG.B1RELEASE + take.guiId, [None])
-        elif app.hud.steps == 12 and "save" not in clicks:
-            clicks.add("save")
+        elif app.hud.steps >= clicks.get("release", 1 << 30) + 3 and "save" not in clicks:
+            clicks["save"] = app.hud.steps
             app.buttons["save"].commandFunc(None)       # save the attempt as it stands
-        elif app.hud.attempt == 2 and app.hud.steps == 2:
+        elif app.hud.attempt == 2 and app.hud.steps >= 2:
             app.buttons["exit"].commandFunc(None)
         return task.cont
 
@@ -356,11 +359,15 @@ def test_gui_take_over_button_hands_the_arm_to_the_keyboard_and_back(tmp_path):
     app.play()
     app.run()
     assert app.last_error is None
-    assert shown[2] is False and shown[6] is True and shown[11] is False   # the HUD says who acts
+    press, release = clicks["press"], clicks["release"]
+    # the HUD says who acts: the policy before the press, the operator while held, the policy after the release
+    assert all(who is False for step, who in shown.items() if step < press)
+    assert any(who is True for step, who in shown.items() if press < step <= release)
+    assert all(who is False for step, who in shown.items() if step > release + 2)
     root = tmp_path / f"{REACH}_intervene"
     traj = DatasetReader(root).trajectory(0)
     flags = traj.flags["intervention"][:, 0]
     run = np.flatnonzero(flags)
     assert len(run) >= 4 and np.array_equal(run, np.arange(run[0], run[-1] + 1))   # one takeover, held throughout
-    assert 3 <= run[0] <= 5 and 9 <= run[-1] + 1 <= 11
+    assert press <= run[0] <= press + 2 and release <= run[-1] + 1 <= release + 2
     assert np.abs(traj.action[flags, :3]).max() > 0.1 and not traj.action[~flags, :4].any()
