@@ -273,8 +273,7 @@ def info(dataset: Path = typer.Argument(..., help="Dataset folder.")):
 
     try:
         with _working(f"checking and summarising {dataset} ..."):
-            require_valid(dataset, _note)
-            summary = render_info(dataset)
+            summary = render_info(require_valid(dataset, _note))
         console.print(summary)
     except DatasetError as e:
         _fail(str(e))
@@ -685,6 +684,15 @@ class ExportFormat(str, Enum):
     minari = "minari"
 
 
+def _cameras(dataset: Path) -> list[str]:
+    """The camera names of a dataset, from its info.json alone (the dataset may be one read through a repaired
+    view: its own files are not all readable)."""
+    from surrol_data.datasets.reader import load_info
+
+    return [k.removeprefix("observation.images.") for k, ft in load_info(dataset)["features"].items()
+            if ft["dtype"] == "video" and k.startswith("observation.images.")]
+
+
 @app.command()
 def export(dataset: Path = typer.Argument(..., help="Dataset folder."),
            format: ExportFormat = typer.Option(..., "--format", help="robomimic (one .hdf5) or minari (a folder)."),
@@ -705,9 +713,7 @@ def export(dataset: Path = typer.Argument(..., help="Dataset folder."),
 
             path = export_robomimic(dataset, out, where=where, valid_fraction=valid_fraction, seed=seed,
                                     overwrite=overwrite, episodes=indices)
-            from surrol_data.datasets.reader import DatasetReader
-
-            cameras = DatasetReader(dataset).cameras
+            cameras = _cameras(dataset)
             console.print(f"wrote {path}" + (f" (camera frames in obs/{cameras[0]}_image)" if cameras else ""))
         else:
             from surrol_data.datasets.export_minari import export_minari
@@ -715,9 +721,7 @@ def export(dataset: Path = typer.Argument(..., help="Dataset folder."),
             ds = export_minari(dataset, out, dataset_id=dataset_id, where=where, episodes=indices)
             console.print(f"wrote Minari dataset {ds.spec.dataset_id!r} ({ds.total_episodes} episodes) under {out}; "
                           f"load it with MINARI_DATASETS_PATH={out} and minari.load_dataset({ds.spec.dataset_id!r})")
-            from surrol_data.datasets.reader import DatasetReader
-
-            if DatasetReader(dataset).cameras:
+            if _cameras(dataset):
                 _note("the Minari export holds the state, goals, actions and rewards, not the camera frames; "
                       "`--format robomimic` exports those too (obs/<camera>_image)")
     except (DatasetError, ValueError, FileExistsError, ImportError) as e:
