@@ -614,6 +614,24 @@ def repair(dataset: Path = typer.Argument(..., help="Dataset folder left by a ki
 
 
 @app.command()
+def adopt(dataset: Path = typer.Argument(..., help="A dataset rewritten by lerobot's own tools (aggregate_datasets, "
+                                                   "lerobot-edit-dataset)."),
+          original: Path = typer.Option(..., "--from", help="The surrol_data dataset it was made from.")):
+    """Restore provenance, seals, device traces, sidecar and card of a dataset lerobot's tools rewrote, matching
+    each episode to the original's by the content hash of its frames."""
+    from surrol_data.datasets.adopt import adopt as adopt_dataset
+    from surrol_data.datasets.reader import DatasetError
+
+    try:
+        with _working(f"adopting {dataset} ..."):
+            report = adopt_dataset(dataset, original)
+    except DatasetError as e:
+        _fail(str(e))
+    for line in report.lines():
+        console.print(line, highlight=False)
+
+
+@app.command()
 def merge(datasets: list[Path] = typer.Argument(..., help="Input dataset folders (same task, fps and features)."),
           out: Optional[Path] = typer.Option(None, help="New dataset folder for the merged episodes."),
           drop_duplicates: bool = typer.Option(False, help="Keep one copy of episodes with equal content instead "

@@ -29,7 +29,8 @@ def test_collect_append_validate_and_merge_in_odd_folders(tmp_path):
         assert run.exit_code == 0, (args, run.output)
         return " ".join(run.output.split())
 
-    collect = ["collect", "--source", "script", "--task", "NeedleReach", "--num-episodes", "1", "--max-steps", "15"]
+    collect = ["collect", "--source", "script", "--task", "NeedleReach", "--num-episodes", "1", "--max-steps", "15",
+               "--keep-failures"]
     ok(*collect, "--out", str(first))
     ok(*collect, "--out", str(first), "--append")
     ok(*collect, "--out", str(second), "--seed", "5")

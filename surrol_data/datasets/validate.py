@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from surrol_data.datasets.info import read_sidecar
@@ -276,8 +277,16 @@ def _check_columns(root: Path, info: dict) -> list[Problem]:
                                         f"or {REPAIR_HINT}"))
                 continue
             typ = schema.field(name).type
-            width = typ.list_size if pa.types.is_fixed_size_list(typ) else 1
-            declared = int(np.prod(ft["shape"])) if ft["dtype"] != "image" else width
+            declared = int(np.prod(ft["shape"]))
+            if pa.types.is_list(typ) or pa.types.is_large_list(typ):
+                # lerobot's own tools (aggregate_datasets, lerobot-edit-dataset) write vectors through pandas as
+                # variable-length lists: the same values, so accepted when every row holds the declared count
+                lengths = set(pc.list_value_length(pq.read_table(path, columns=[name]).column(0)).to_pylist())
+                width = lengths.pop() if len(lengths) == 1 else f"{sorted(map(str, lengths))} (varying)"
+            else:
+                width = typ.list_size if pa.types.is_fixed_size_list(typ) else 1
+            if ft["dtype"] == "image":
+                declared = width
             if width != declared:
                 problems.append(Problem("schema", f"meta/info.json features.{name}.shape",
                                         f"declares {list(ft['shape'])} but {path.relative_to(root)} stores {width} "
