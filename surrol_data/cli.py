@@ -31,6 +31,35 @@ def _fail(message: str) -> None:
     raise typer.Exit(code=2)
 
 
+def _disk_full(error: BaseException | None) -> bool:
+    """Whether ``error`` (or an error it was raised from: lerobot and pyarrow wrap them) is a full disk or quota."""
+    import errno
+
+    seen = 0
+    while error is not None and seen < 20:
+        if isinstance(error, OSError) and (error.errno in (errno.ENOSPC, errno.EDQUOT)
+                                           or "No space left on device" in str(error)):
+            return True
+        error, seen = error.__cause__ or error.__context__, seen + 1
+    return False
+
+
+@contextlib.contextmanager
+def _disk_full_is_an_error(path: Path):
+    """A full disk ends the command with one line, not a traceback. What it wrote is safe (episodes are journalled
+    before ``record`` returns, files are replaced only once their new version is whole), so saying so is true."""
+    try:
+        yield
+    except typer.Exit:
+        raise
+    except Exception as e:  # noqa: BLE001 - only a full disk is handled here; anything else is re-raised
+        if not _disk_full(e):
+            raise
+        _fail(f"no space left on the disk that holds {path}: stopped; every episode finished before is kept (in "
+              f"the dataset or its journal). Free some space, then run the command again (a recording that "
+              f"stopped is repaired by `surrol-data repair {path}` or by the next command that opens it)")
+
+
 def _note(message: str) -> None:
     """Something the user should know that is not an error (e.g. an automatic repair)."""
     Console(stderr=True).print(f"[yellow]note:[/] {escape(message)}", highlight=False)
@@ -185,11 +214,13 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
 
         acting, policy_info = _supervised_policy(policy)
         try:
-            result = collect_haptic(task, episodes, out, device=device, operator_id=operator_id, skill=skill,
-                                    sides=side or None, mapping=parse_mapping(mapping or []), trace=trace, seed=seed,
-                                    max_steps=max_steps, keep_failures=keep_failures, append=append, gui=gui,
-                                    rerun_live=rerun_live, command=command, env_kwargs=camera_kwargs(size),
-                                    profile=profile, policy=acting, policy_info=policy_info)
+            with _disk_full_is_an_error(out):
+                result = collect_haptic(task, episodes, out, device=device, operator_id=operator_id, skill=skill,
+                                        sides=side or None, mapping=parse_mapping(mapping or []), trace=trace,
+                                        seed=seed, max_steps=max_steps, keep_failures=keep_failures, append=append,
+                                        gui=gui, rerun_live=rerun_live, command=command,
+                                        env_kwargs=camera_kwargs(size), profile=profile, policy=acting,
+                                        policy_info=policy_info)
         except (ValueError, FileExistsError, RuntimeError) as e:   # DeviceError is a RuntimeError
             _fail(str(e) if not isinstance(e, DeviceError) else f"device: {e}")
         console.print(f"recorded {result.kept} episodes ({result.attempts} attempts, success "
@@ -201,8 +232,9 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
     from surrol_data.collect.script_source import collect_script
 
     try:
-        result = collect_script(task, episodes, out, seed=seed, max_steps=max_steps, keep_failures=keep_failures,
-                                append=append, command=command, camera_size=size, speed=speed)
+        with _disk_full_is_an_error(out):
+            result = collect_script(task, episodes, out, seed=seed, max_steps=max_steps, keep_failures=keep_failures,
+                                    append=append, command=command, camera_size=size, speed=speed)
     except (ValueError, FileExistsError, RuntimeError) as e:
         _fail(str(e))
     console.print(f"recorded {result.kept} episodes ({result.attempts} attempts, oracle success "
@@ -272,7 +304,7 @@ def info(dataset: Path = typer.Argument(..., help="Dataset folder.")):
     from surrol_data.datasets.reader import DatasetError
 
     try:
-        with _working(f"checking and summarising {dataset} ..."):
+        with _working(f"checking and summarising {dataset} ..."), _disk_full_is_an_error(dataset):
             summary = render_info(require_valid(dataset, _note))
         console.print(summary)
     except DatasetError as e:
@@ -605,7 +637,7 @@ def repair(dataset: Path = typer.Argument(..., help="Dataset folder left by a ki
     from surrol_data.datasets.reader import DatasetError
 
     try:
-        with _working(f"repairing {dataset} ..."):
+        with _working(f"repairing {dataset} ..."), _disk_full_is_an_error(dataset):
             report = repair_dataset(dataset)
     except DatasetError as e:
         _fail(str(e))
@@ -623,7 +655,7 @@ def adopt(dataset: Path = typer.Argument(..., help="A dataset rewritten by lerob
     from surrol_data.datasets.reader import DatasetError
 
     try:
-        with _working(f"adopting {dataset} ..."):
+        with _working(f"adopting {dataset} ..."), _disk_full_is_an_error(dataset):
             report = adopt_dataset(dataset, original)
     except DatasetError as e:
         _fail(str(e))
@@ -651,7 +683,8 @@ def merge(datasets: list[Path] = typer.Argument(..., help="Input dataset folders
         else:
             _fail("say where the merged dataset goes: surrol-data merge IN... --out OUT")
     try:
-        merge_datasets(out, datasets, command=_this_command(), drop_duplicates=drop_duplicates)
+        with _disk_full_is_an_error(out):
+            merge_datasets(out, datasets, command=_this_command(), drop_duplicates=drop_duplicates)
     except (DatasetError, ValueError, FileExistsError) as e:
         _fail(str(e))
     console.print(f"merged {len(datasets)} dataset(s) into {out}")
@@ -672,7 +705,8 @@ def filter_cmd(dataset: Path = typer.Argument(..., help="Dataset folder."),
         _fail("say which episodes to keep: --where EXPRESSION and/or --episodes 0,3,5-9")
     indices = _episode_indices(episodes)
     try:
-        filter_dataset(dataset, out, where, command=_this_command(), episodes=indices)
+        with _disk_full_is_an_error(out):
+            filter_dataset(dataset, out, where, command=_this_command(), episodes=indices)
     except (DatasetError, ValueError, FileExistsError) as e:
         _fail(str(e))
     said = " and ".join(x for x in (f"where {where}" if where else "", f"--episodes {episodes}" if episodes else "")
@@ -691,7 +725,8 @@ def split(dataset: Path = typer.Argument(..., help="Dataset folder."),
     from surrol_data.datasets.reader import DatasetError
 
     try:
-        parts = split_dataset(dataset, out, valid_fraction, seed, where=where, command=_this_command())
+        with _disk_full_is_an_error(out):
+            parts = split_dataset(dataset, out, valid_fraction, seed, where=where, command=_this_command())
     except (DatasetError, ValueError, FileExistsError) as e:
         _fail(str(e))
     console.print(f"wrote {parts['train']} and {parts['valid']}")
@@ -776,7 +811,7 @@ def upgrade(dataset: Path = typer.Argument(..., help="Dataset folder written by 
     from surrol_data.datasets.upgrade import upgrade_dataset
 
     try:
-        with console.status(f"upgrading {dataset}"):
+        with console.status(f"upgrading {dataset}"), _disk_full_is_an_error(dataset):
             report = upgrade_dataset(dataset, keep_backup=keep_backup)
     except DatasetError as e:
         _fail(str(e))

@@ -287,9 +287,16 @@ def _cut_back(root: Path):
             if pc.all(keep).as_py():
                 continue
             filtered = table.filter(keep)
+            tmp = path.with_name(path.name + ".tmp")
+            if filtered.num_rows:
+                try:
+                    write(filtered, tmp)  # whole before the original moves: a full disk leaves the original
+                except BaseException:
+                    tmp.unlink(missing_ok=True)
+                    raise
             move_aside(path)
             if filtered.num_rows:
-                write(filtered, path)
+                os.replace(tmp, path)
     referenced = {video_file(r, v) for r in kept_rows for v in video_keys}
     if (root / "videos").is_dir():
         for path in sorted((root / "videos").rglob("*.mp4")):
