@@ -285,8 +285,10 @@ def _aggregate(readers: list[DatasetReader], out: Path, shared: dict, *, command
                     _copy_trace(reader.root, int(ep), built, offset + int(ep))
                 offset += len(reader)
             side = read_sidecar(readers[0].root)
-            for stale in ("checkpoint", "sessions", "derived_from", "created_at"):
+            for stale in ("checkpoint", "sessions", "derived_from", "created_at", "seals"):
                 side.pop(stale, None)
+            if all(read_sidecar(r.root).get("seals") for r in readers):
+                side["seals"] = 1  # every episode came with its seals (an unsealed input's episodes have none)
             info_text = (built / "meta" / "info.json").read_text()
             now = utc_now_iso()
             side.update({"repo_id": local_repo_id(out), "created_at": now, "updated_at": now,
