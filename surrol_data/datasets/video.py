@@ -19,6 +19,14 @@ import numpy as np
 from surrol_data.datasets.errors import DatasetError
 
 
+def _seek(container, at_s: float):
+    """The video stream of ``container``, positioned on the key frame at or before ``at_s`` seconds (reading runs
+    forward from there)."""
+    stream = container.streams.video[0]
+    container.seek(max(0, int(at_s / stream.time_base)), stream=stream, backward=True, any_frame=False)
+    return stream
+
+
 def decode_segment(path: str | Path, from_s: float, to_s: float, fps: float, expected: int) -> np.ndarray:
     """The ``expected`` RGB frames (uint8, (T, H, W, 3)) shown between ``from_s`` and ``to_s`` seconds of ``path``."""
     import av
@@ -28,10 +36,7 @@ def decode_segment(path: str | Path, from_s: float, to_s: float, fps: float, exp
     frames = []
     try:
         with av.open(str(path)) as container:
-            stream = container.streams.video[0]
-            # Seek lands on the key frame at or before the segment; decoding runs forward from there.
-            container.seek(max(0, int((from_s - half) / stream.time_base)), stream=stream, backward=True,
-                           any_frame=False)
+            stream = _seek(container, from_s - half)
             for frame in container.decode(stream):
                 t = float(frame.pts * stream.time_base) if frame.pts is not None else float(frame.time or 0.0)
                 if t < from_s - half:
@@ -62,9 +67,7 @@ def segment_digest(path: str | Path, from_s: float, to_s: float, fps: float) -> 
     packets: list[tuple[float, bytes]] = []
     try:
         with av.open(str(path)) as container:
-            stream = container.streams.video[0]
-            container.seek(max(0, int((from_s - half) / stream.time_base)), stream=stream, backward=True,
-                           any_frame=False)
+            stream = _seek(container, from_s - half)
             for packet in container.demux(stream):
                 if packet.pts is None or packet.size == 0:
                     continue
