@@ -255,7 +255,7 @@ def _aggregate(readers: list[DatasetReader], out: Path, shared: dict, *, command
     import shutil
 
     from surrol_data.datasets.card import write_dataset_card
-    from surrol_data.datasets.hub_offline import hub_offline, local_repo_id, quiet_video_encoder
+    from surrol_data.datasets.hub_offline import hub_offline, lerobot_root, local_repo_id, quiet_video_encoder
     from surrol_data.datasets.lock import DatasetLock, writer_pid
     from surrol_data.datasets.schema import package_version, utc_now_iso
     from surrol_data.datasets.writer import _write_json_atomic, git_commit
@@ -266,7 +266,7 @@ def _aggregate(readers: list[DatasetReader], out: Path, shared: dict, *, command
             raise DatasetError(f"another merge into {out} is running (pid {writer_pid(staging) or '?'}); wait for it")
         shutil.rmtree(staging)  # left by a killed merge: it never became an output, nothing in it is anyone's data
     staging.mkdir(parents=True)
-    built = staging / out.name
+    built = staging / "dataset"  # a plain name for lerobot (``out``'s may hold [1] or spaces); renamed below
     started = utc_now_iso()
     try:
         with DatasetLock(staging):
@@ -274,7 +274,8 @@ def _aggregate(readers: list[DatasetReader], out: Path, shared: dict, *, command
 
             with hub_offline(), quiet_video_encoder(), _lerobot_progress(progress):
                 aggregate_datasets([local_repo_id(r.root) for r in readers], local_repo_id(out),
-                                   roots=[r.root for r in readers], aggr_root=built)
+                                   roots=[lerobot_root(r.root) for r in readers],
+                                   aggr_root=lerobot_root(staging) / built.name)
             _restore_frame_types(built, readers[0].root)
             _point_episode_rows_at_their_files(built)
             provenance_of, offset = [], 0

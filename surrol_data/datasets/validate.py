@@ -789,14 +789,14 @@ def _check_reward(side: dict, meta: pa.Table, data: pa.Table) -> list[Problem]:
 
 
 def _check_lerobot(root: Path, info: dict) -> list[Problem]:
-    from surrol_data.datasets.hub_offline import hub_offline, usable_repo_id
+    from surrol_data.datasets.hub_offline import hub_offline, lerobot_root, usable_repo_id
 
     try:
         from surrol_data.datasets.writer import VIDEO_BACKEND, _lerobot_dataset_class
 
         side = read_sidecar(root)
         with hub_offline():
-            ds = _lerobot_dataset_class()(usable_repo_id(side.get("repo_id"), root), root=root,
+            ds = _lerobot_dataset_class()(usable_repo_id(side.get("repo_id"), root), root=lerobot_root(root),
                                           video_backend=VIDEO_BACKEND)
         if ds.num_episodes != int(info["total_episodes"]) or ds.num_frames != int(info["total_frames"]):
             return [Problem("lerobot", str(root), f"LeRobotDataset sees {ds.num_episodes} episodes / {ds.num_frames} "

@@ -70,7 +70,7 @@ import pyarrow.parquet as pq
 
 from surrol_data.datasets import journal
 from surrol_data.datasets.card import write_dataset_card
-from surrol_data.datasets.hub_offline import hub_offline, quiet_video_encoder, usable_repo_id
+from surrol_data.datasets.hub_offline import hub_offline, lerobot_root, quiet_video_encoder, usable_repo_id
 from surrol_data.datasets import lerobot_compat
 from surrol_data.datasets.info import read_sidecar
 from surrol_data.datasets.lock import DatasetLock
@@ -272,7 +272,8 @@ class DatasetWriter:
             self._lock.acquire()  # before touching anything: a second writer gets a clear error
             try:
                 with hub_offline():
-                    self._ds = LeRobotDataset.resume(self.repo_id, root=self.root, video_backend=VIDEO_BACKEND)
+                    self._ds = LeRobotDataset.resume(self.repo_id, root=lerobot_root(self.root),
+                                                     video_backend=VIDEO_BACKEND)
             except BaseException:
                 self._lock.release()
                 raise
@@ -453,7 +454,7 @@ class DatasetWriter:
             if not lerobot_compat.close_files_and_continue(self._ds):
                 self._ds.finalize()
                 with hub_offline():
-                    self._ds = _lerobot_dataset_class().resume(self.repo_id, root=self.root,
+                    self._ds = _lerobot_dataset_class().resume(self.repo_id, root=lerobot_root(self.root),
                                                                video_backend=VIDEO_BACKEND)
                 self._prepare_writer()
             self._durable = self._ds.meta.total_episodes
