@@ -50,7 +50,7 @@ def _disk_full_is_an_error(path: Path):
     before ``record`` returns, files are replaced only once their new version is whole), so saying so is true."""
     try:
         yield
-    except typer.Exit:
+    except typer.Exit:  # a RuntimeError too (click's Exit): the command has already said why it stopped
         raise
     except Exception as e:  # noqa: BLE001 - only a full disk is handled here; anything else is re-raised
         if not _disk_full(e):
@@ -213,16 +213,18 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
         from surrol_data.collect.script_source import camera_kwargs
 
         acting, policy_info = _supervised_policy(policy)
-        try:
-            with _disk_full_is_an_error(out):
+        with _disk_full_is_an_error(out):
+            try:
                 result = collect_haptic(task, episodes, out, device=device, operator_id=operator_id, skill=skill,
                                         sides=side or None, mapping=parse_mapping(mapping or []), trace=trace,
                                         seed=seed, max_steps=max_steps, keep_failures=keep_failures, append=append,
                                         gui=gui, rerun_live=rerun_live, command=command,
                                         env_kwargs=camera_kwargs(size), profile=profile, policy=acting,
                                         policy_info=policy_info)
-        except (ValueError, FileExistsError, RuntimeError) as e:   # DeviceError is a RuntimeError
-            _fail(str(e) if not isinstance(e, DeviceError) else f"device: {e}")
+            except (ValueError, FileExistsError, RuntimeError) as e:   # DeviceError is a RuntimeError
+                if _disk_full(e):
+                    raise
+                _fail(str(e) if not isinstance(e, DeviceError) else f"device: {e}")
         console.print(f"recorded {result.kept} episodes ({result.attempts} attempts, success "
                       f"{result.success_rate:.0%}, {result.discarded} discarded, {result.redone} redone) into {out}")
         if policy is not None:
@@ -231,12 +233,14 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
         return
     from surrol_data.collect.script_source import collect_script
 
-    try:
-        with _disk_full_is_an_error(out):
+    with _disk_full_is_an_error(out):
+        try:
             result = collect_script(task, episodes, out, seed=seed, max_steps=max_steps, keep_failures=keep_failures,
                                     append=append, command=command, camera_size=size, speed=speed)
-    except (ValueError, FileExistsError, RuntimeError) as e:
-        _fail(str(e))
+        except (ValueError, FileExistsError, RuntimeError) as e:
+            if _disk_full(e):
+                raise
+            _fail(str(e))
     console.print(f"recorded {result.kept} episodes ({result.attempts} attempts, oracle success "
                   f"{result.success_rate:.0%}) into {out}")
 
