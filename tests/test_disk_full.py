@@ -5,15 +5,11 @@ the disk filled is in the repaired dataset. Runs in a private mount namespace (`
 from __future__ import annotations
 
 import json
-import os
-import shutil
-import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
+import private_mounts
 
 _COMMANDS = """
 import json, sys
@@ -47,13 +43,6 @@ print("RESULTS " + json.dumps(results))
 """
 
 
-def _can_mount() -> str:
-    if shutil.which("unshare") is None:
-        return "unshare (util-linux) is not installed"
-    probe = subprocess.run(["unshare", "--mount", "--propagation", "private", "true"], capture_output=True)
-    return "" if probe.returncode == 0 else "needs root to mount a tmpfs (unshare --mount)"
-
-
 def _one_line_error(result: dict) -> bool:
     said = " ".join(result["output"].split())
     return (result["exception"] is None and "Traceback" not in result["output"]
@@ -61,7 +50,7 @@ def _one_line_error(result: dict) -> bool:
 
 
 def test_disk_full_is_one_line_and_loses_nothing(tmp_path):
-    why = _can_mount()
+    why = private_mounts.skip_reason()
     if why:
         pytest.skip(why)
     disk = tmp_path / "disk"
@@ -72,9 +61,7 @@ def test_disk_full_is_one_line_and_loses_nothing(tmp_path):
     py = f"'{sys.executable}' '{script}' '{root}'"
     shell = (f"mount -t tmpfs -o size=1m tmpfs '{disk}' && {py} full && "
              f"mount -o remount,size=256m '{disk}' && {py} space")
-    env = {**os.environ, "PYTHONPATH": f"{REPO_ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
-    run = subprocess.run(["unshare", "--mount", "--propagation", "private", "sh", "-c", shell], cwd=REPO_ROOT,
-                         capture_output=True, text=True, timeout=1200, env=env)
+    run = private_mounts.run(shell, timeout=1200)
     lines = [json.loads(line.removeprefix("RESULTS ")) for line in run.stdout.splitlines()
              if line.startswith("RESULTS ")]
     assert run.returncode == 0 and len(lines) == 2, run.stdout[-3000:] + run.stderr[-3000:]

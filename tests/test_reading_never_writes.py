@@ -6,13 +6,12 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import re
 import shutil
-import subprocess
 import sys
 from pathlib import Path
 
+import private_mounts
 import pytest
 from typer.testing import CliRunner
 
@@ -20,7 +19,6 @@ from surrol_data.cli import app
 from surrol_data.collect import corruptions
 from surrol_data.datasets.recorder import DatasetRecorder
 
-REPO_ROOT = Path(__file__).resolve().parents[1]
 ARGS = dict(task="NeedleReach", env_id="SurRoL/NeedleReach-v0", task_description="reach the needle")
 
 
@@ -103,15 +101,8 @@ print("RESULTS " + json.dumps(results))
 """
 
 
-def _can_mount() -> str:
-    if shutil.which("unshare") is None:
-        return "unshare (util-linux) is not installed"
-    probe = subprocess.run(["unshare", "--mount", "--propagation", "private", "true"], capture_output=True)
-    return "" if probe.returncode == 0 else "needs root to make a read-only bind mount (unshare --mount)"
-
-
 def test_a_killed_dataset_on_a_read_only_mount_can_be_read(killed, tmp_path):
-    why = _can_mount()
+    why = private_mounts.skip_reason()
     if why:
         pytest.skip(why)
     root = tmp_path / "ro"
@@ -123,9 +114,7 @@ def test_a_killed_dataset_on_a_read_only_mount_can_be_read(killed, tmp_path):
     script.write_text(_IN_MOUNT)
     shell = (f"mount --bind '{root}' '{root}' && mount -o remount,bind,ro '{root}' && "
              f"! touch '{root}/probe' 2>/dev/null && '{sys.executable}' '{script}' '{root}' '{out}'")
-    env = {**os.environ, "PYTHONPATH": f"{REPO_ROOT}{os.pathsep}{os.environ.get('PYTHONPATH', '')}"}
-    run = subprocess.run(["unshare", "--mount", "--propagation", "private", "sh", "-c", shell], cwd=REPO_ROOT,
-                         capture_output=True, text=True, timeout=900, env=env)
+    run = private_mounts.run(shell, timeout=900)
     lines = [line for line in run.stdout.splitlines() if line.startswith("RESULTS ")]
     assert run.returncode == 0 and lines, run.stdout[-3000:] + run.stderr[-3000:]
     results = json.loads(lines[0].removeprefix("RESULTS "))

@@ -25,6 +25,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from surrol_data.datasets.info import read_sidecar
+from surrol_data.datasets.repair import TRACE_DIR
 from surrol_data.datasets.reader import (
     DATA_DIR,
     EPISODES_DIR,
@@ -46,7 +47,6 @@ from surrol_data.datasets.schema import (
 )
 
 _LEROBOT_DEFAULT = ("timestamp", "frame_index", "episode_index", "index", "task_index")
-TRACE_DIR = "meta/device_traces"
 
 
 @dataclass
