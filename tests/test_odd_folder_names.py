@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-
 import pytest
 from huggingface_hub.utils import validate_repo_id
 from typer.testing import CliRunner
