@@ -142,7 +142,8 @@ def _validate(root: Path, check_reward: bool, check_lerobot: bool, check_videos:
         meta_tables.append(table.append_column("__meta_file", pa.array([str(path.relative_to(root))] * table.num_rows)))
     meta_full = pa.concat_tables(meta_tables, promote_options="default").sort_by("episode_index")
     meta = meta_full.select([n for n in meta_full.column_names if not n.startswith("stats/")])
-    problems += _check_provenance(meta)
+    provenance_problems = _check_provenance(meta)
+    problems += provenance_problems
     column_problems = _check_columns(root, info)
     if column_problems:
         return problems + column_problems
@@ -163,7 +164,8 @@ def _validate(root: Path, check_reward: bool, check_lerobot: bool, check_videos:
     side = read_sidecar(root)
     problems += _check_sidecar(root, side, meta)
     problems += _check_traces(root, meta, data)
-    problems += _check_provenance_seals(meta, bool(side.get("seals")))
+    if not provenance_problems:  # a column of the wrong type or with nulls is reported once, above
+        problems += _check_provenance_seals(meta, bool(side.get("seals")))
     if check_videos:
         stage("videos")
         problems += _check_videos(root, info, meta_full)
