@@ -31,6 +31,35 @@ def _fail(message: str) -> None:
     raise typer.Exit(code=2)
 
 
+def _disk_full(error: BaseException | None) -> bool:
+    """Whether ``error`` (or an error it was raised from: lerobot and pyarrow wrap them) is a full disk or quota."""
+    import errno
+
+    seen = 0
+    while error is not None and seen < 20:
+        if isinstance(error, OSError) and (error.errno in (errno.ENOSPC, errno.EDQUOT)
+                                           or "No space left on device" in str(error)):
+            return True
+        error, seen = error.__cause__ or error.__context__, seen + 1
+    return False
+
+
+@contextlib.contextmanager
+def _disk_full_is_an_error(path: Path):
+    """A full disk ends the command with one line, not a traceback. What it wrote is safe (episodes are journalled
+    before ``record`` returns, files are replaced only once their new version is whole), so saying so is true."""
+    try:
+        yield
+    except typer.Exit:  # a RuntimeError too (click's Exit): the command has already said why it stopped
+        raise
+    except Exception as e:  # noqa: BLE001 - only a full disk is handled here; anything else is re-raised
+        if not _disk_full(e):
+            raise
+        _fail(f"no space left on the disk that holds {path}: stopped; every episode finished before is kept (in "
+              f"the dataset or its journal). Free some space, then run the command again (a recording that "
+              f"stopped is repaired by `surrol-data repair {path}` or by the next command that opens it)")
+
+
 def _note(message: str) -> None:
     """Something the user should know that is not an error (e.g. an automatic repair)."""
     Console(stderr=True).print(f"[yellow]note:[/] {escape(message)}", highlight=False)
@@ -184,14 +213,18 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
         from surrol_data.collect.script_source import camera_kwargs
 
         acting, policy_info = _supervised_policy(policy)
-        try:
-            result = collect_haptic(task, episodes, out, device=device, operator_id=operator_id, skill=skill,
-                                    sides=side or None, mapping=parse_mapping(mapping or []), trace=trace, seed=seed,
-                                    max_steps=max_steps, keep_failures=keep_failures, append=append, gui=gui,
-                                    rerun_live=rerun_live, command=command, env_kwargs=camera_kwargs(size),
-                                    profile=profile, policy=acting, policy_info=policy_info)
-        except (ValueError, FileExistsError, RuntimeError) as e:   # DeviceError is a RuntimeError
-            _fail(str(e) if not isinstance(e, DeviceError) else f"device: {e}")
+        with _disk_full_is_an_error(out):
+            try:
+                result = collect_haptic(task, episodes, out, device=device, operator_id=operator_id, skill=skill,
+                                        sides=side or None, mapping=parse_mapping(mapping or []), trace=trace,
+                                        seed=seed, max_steps=max_steps, keep_failures=keep_failures, append=append,
+                                        gui=gui, rerun_live=rerun_live, command=command,
+                                        env_kwargs=camera_kwargs(size), profile=profile, policy=acting,
+                                        policy_info=policy_info)
+            except (ValueError, FileExistsError, RuntimeError) as e:   # DeviceError is a RuntimeError
+                if _disk_full(e):
+                    raise
+                _fail(str(e) if not isinstance(e, DeviceError) else f"device: {e}")
         console.print(f"recorded {result.kept} episodes ({result.attempts} attempts, success "
                       f"{result.success_rate:.0%}, {result.discarded} discarded, {result.redone} redone) into {out}")
         if policy is not None:
@@ -200,11 +233,14 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
         return
     from surrol_data.collect.script_source import collect_script
 
-    try:
-        result = collect_script(task, episodes, out, seed=seed, max_steps=max_steps, keep_failures=keep_failures,
-                                append=append, command=command, camera_size=size, speed=speed)
-    except (ValueError, FileExistsError, RuntimeError) as e:
-        _fail(str(e))
+    with _disk_full_is_an_error(out):
+        try:
+            result = collect_script(task, episodes, out, seed=seed, max_steps=max_steps, keep_failures=keep_failures,
+                                    append=append, command=command, camera_size=size, speed=speed)
+        except (ValueError, FileExistsError, RuntimeError) as e:
+            if _disk_full(e):
+                raise
+            _fail(str(e))
     console.print(f"recorded {result.kept} episodes ({result.attempts} attempts, oracle success "
                   f"{result.success_rate:.0%}) into {out}")
 
@@ -272,9 +308,8 @@ def info(dataset: Path = typer.Argument(..., help="Dataset folder.")):
     from surrol_data.datasets.reader import DatasetError
 
     try:
-        with _working(f"checking and summarising {dataset} ..."):
-            require_valid(dataset, _note)
-            summary = render_info(dataset)
+        with _working(f"checking and summarising {dataset} ..."), _disk_full_is_an_error(dataset):
+            summary = render_info(require_valid(dataset, _note), label=dataset)
         console.print(summary)
     except DatasetError as e:
         _fail(str(e))
@@ -606,8 +641,26 @@ def repair(dataset: Path = typer.Argument(..., help="Dataset folder left by a ki
     from surrol_data.datasets.reader import DatasetError
 
     try:
-        with _working(f"repairing {dataset} ..."):
+        with _working(f"repairing {dataset} ..."), _disk_full_is_an_error(dataset):
             report = repair_dataset(dataset)
+    except DatasetError as e:
+        _fail(str(e))
+    for line in report.lines():
+        console.print(line, highlight=False)
+
+
+@app.command()
+def adopt(dataset: Path = typer.Argument(..., help="A dataset rewritten by lerobot's own tools (aggregate_datasets, "
+                                                   "lerobot-edit-dataset)."),
+          original: Path = typer.Option(..., "--from", help="The surrol_data dataset it was made from.")):
+    """Restore provenance, seals, device traces, sidecar and card of a dataset lerobot's tools rewrote, matching
+    each episode to the original's by the content hash of its frames."""
+    from surrol_data.datasets.adopt import adopt as adopt_dataset
+    from surrol_data.datasets.reader import DatasetError
+
+    try:
+        with _working(f"adopting {dataset} ..."), _disk_full_is_an_error(dataset):
+            report = adopt_dataset(dataset, original)
     except DatasetError as e:
         _fail(str(e))
     for line in report.lines():
@@ -634,7 +687,8 @@ def merge(datasets: list[Path] = typer.Argument(..., help="Input dataset folders
         else:
             _fail("say where the merged dataset goes: surrol-data merge IN... --out OUT")
     try:
-        merge_datasets(out, datasets, command=_this_command(), drop_duplicates=drop_duplicates)
+        with _disk_full_is_an_error(out):
+            merge_datasets(out, datasets, command=_this_command(), drop_duplicates=drop_duplicates)
     except (DatasetError, ValueError, FileExistsError) as e:
         _fail(str(e))
     console.print(f"merged {len(datasets)} dataset(s) into {out}")
@@ -655,7 +709,8 @@ def filter_cmd(dataset: Path = typer.Argument(..., help="Dataset folder."),
         _fail("say which episodes to keep: --where EXPRESSION and/or --episodes 0,3,5-9")
     indices = _episode_indices(episodes)
     try:
-        filter_dataset(dataset, out, where, command=_this_command(), episodes=indices)
+        with _disk_full_is_an_error(out):
+            filter_dataset(dataset, out, where, command=_this_command(), episodes=indices)
     except (DatasetError, ValueError, FileExistsError) as e:
         _fail(str(e))
     said = " and ".join(x for x in (f"where {where}" if where else "", f"--episodes {episodes}" if episodes else "")
@@ -674,7 +729,8 @@ def split(dataset: Path = typer.Argument(..., help="Dataset folder."),
     from surrol_data.datasets.reader import DatasetError
 
     try:
-        parts = split_dataset(dataset, out, valid_fraction, seed, where=where, command=_this_command())
+        with _disk_full_is_an_error(out):
+            parts = split_dataset(dataset, out, valid_fraction, seed, where=where, command=_this_command())
     except (DatasetError, ValueError, FileExistsError) as e:
         _fail(str(e))
     console.print(f"wrote {parts['train']} and {parts['valid']}")
@@ -683,6 +739,15 @@ def split(dataset: Path = typer.Argument(..., help="Dataset folder."),
 class ExportFormat(str, Enum):
     robomimic = "robomimic"
     minari = "minari"
+
+
+def _cameras(dataset: Path) -> list[str]:
+    """The camera names of a dataset, from its info.json alone (the dataset may be one read through a repaired
+    view: its own files are not all readable)."""
+    from surrol_data.datasets.reader import load_info
+
+    return [k.removeprefix("observation.images.") for k, ft in load_info(dataset)["features"].items()
+            if ft["dtype"] == "video" and k.startswith("observation.images.")]
 
 
 @app.command()
@@ -705,9 +770,7 @@ def export(dataset: Path = typer.Argument(..., help="Dataset folder."),
 
             path = export_robomimic(dataset, out, where=where, valid_fraction=valid_fraction, seed=seed,
                                     overwrite=overwrite, episodes=indices)
-            from surrol_data.datasets.reader import DatasetReader
-
-            cameras = DatasetReader(dataset).cameras
+            cameras = _cameras(dataset)
             console.print(f"wrote {path}" + (f" (camera frames in obs/{cameras[0]}_image)" if cameras else ""))
         else:
             from surrol_data.datasets.export_minari import export_minari
@@ -715,9 +778,7 @@ def export(dataset: Path = typer.Argument(..., help="Dataset folder."),
             ds = export_minari(dataset, out, dataset_id=dataset_id, where=where, episodes=indices)
             console.print(f"wrote Minari dataset {ds.spec.dataset_id!r} ({ds.total_episodes} episodes) under {out}; "
                           f"load it with MINARI_DATASETS_PATH={out} and minari.load_dataset({ds.spec.dataset_id!r})")
-            from surrol_data.datasets.reader import DatasetReader
-
-            if DatasetReader(dataset).cameras:
+            if _cameras(dataset):
                 _note("the Minari export holds the state, goals, actions and rewards, not the camera frames; "
                       "`--format robomimic` exports those too (obs/<camera>_image)")
     except (DatasetError, ValueError, FileExistsError, ImportError) as e:
@@ -754,7 +815,7 @@ def upgrade(dataset: Path = typer.Argument(..., help="Dataset folder written by 
     from surrol_data.datasets.upgrade import upgrade_dataset
 
     try:
-        with console.status(f"upgrading {dataset}"):
+        with console.status(f"upgrading {dataset}"), _disk_full_is_an_error(dataset):
             report = upgrade_dataset(dataset, keep_backup=keep_backup)
     except DatasetError as e:
         _fail(str(e))

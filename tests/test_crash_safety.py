@@ -162,7 +162,8 @@ def test_repair_cli_and_automatic_repair_message(base, tmp_path):
     root = tmp_path / "cli"
     shutil.copytree(base, root)
     meta = sorted((root / "meta" / "episodes").rglob("*.parquet"))[-1]
-    meta.write_bytes(meta.read_bytes()[:50])  # as if killed before the footer
+    meta.write_bytes(meta.read_bytes()[:50])  # as if killed before the footer ...
+    corruptions.CLASSES["recording session never ended"](root)  # ... which a kill leaves too
     runner = CliRunner()
     run = runner.invoke(app, ["info", str(root)])
     said = " ".join(run.output.split())

@@ -64,7 +64,10 @@ def base_dataset(root: str | Path, camera: bool = True) -> Path:
             index = rec.record(traj, {"source": "haptic", "device": "touch", "skill": "expert", "seed": i,
                                       "operator_id": "e1"})
             frames = [[DeviceFrame(np.full(3, t, float), np.zeros(3), 0, t / 5) for t in range(len(traj))]]
-            write_trace(trace_path(root, index), frames, traj.action, {"episode_index": index})
+            # the fields a haptic session's trace holds besides the frames (validate compares them with provenance)
+            write_trace(trace_path(root, index), frames, traj.action,
+                        {"episode_index": index, "task": "NeedleReach", "seed": i, "operator_id": "e1",
+                         "skill": "expert", "devices": ["touch"]})
     return root
 
 

@@ -34,8 +34,13 @@ def _fmt(value: float, fmt: str = "{:.1f}") -> str:
     return "–" if value != value else fmt.format(value)  # nan -> dash
 
 
-def _size_category(episodes: int) -> str:
-    return "n<1K" if episodes < 1000 else "1K<n<10K" if episodes < 10_000 else "10K<n<100K"
+def _size_category(rows: int) -> str:
+    """Hugging Face's size category of a dataset of ``rows`` rows: a LeRobot dataset's rows are its frames."""
+    for limit, label in ((1_000, "n<1K"), (10_000, "1K<n<10K"), (100_000, "10K<n<100K"), (1_000_000, "100K<n<1M"),
+                         (10_000_000, "1M<n<10M")):
+        if rows < limit:
+            return label
+    return "10M<n<100M"
 
 
 def relative_command(command: str) -> str:
@@ -120,7 +125,7 @@ def render_dataset_card(root: str | Path, license: str = DEFAULT_LICENSE, repo_i
     card = create_lerobot_dataset_card(tags=tags, license=license, repo_id=repo_id or "",
                                        dataset_description="\n".join(lines), paper=PAPER, url="–",
                                        dataset_structure="\n".join(structure), citation_bibtex=CITATION)
-    card.data.size_categories = [_size_category(s["episodes"])]
+    card.data.size_categories = [_size_category(s["frames"])]
     return str(card)
 
 

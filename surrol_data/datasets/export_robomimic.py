@@ -59,8 +59,8 @@ def export_robomimic(src: str | Path, out: str | Path, *, where: str | None = No
         raise ValueError(f"{out}: a robomimic dataset is one .hdf5 file; name it e.g. demos.hdf5")
     from surrol_data.datasets.guard import require_valid
 
-    require_valid(src)  # cheap checks: a damaged dataset is refused before anything is written
-    reader = DatasetReader(src)
+    # cheap checks: a damaged dataset is refused before anything is written (read: a read-only one's repaired view)
+    reader = DatasetReader(require_valid(src))
     episodes = chosen_episodes(reader, where, episodes)
     if not episodes:
         raise DatasetError(f"no episode of {src} to export" + (f" matches --where {where!r}" if where else ""))

@@ -1,10 +1,15 @@
 """What every command does before it trusts a dataset it was given.
 
 0. :func:`require_dataset_folder`: a path that does not exist, or is no dataset folder at all, is said to be so.
-1. :func:`ensure_finished`: a dataset left by a killed writer is repaired automatically, saying so on stderr
-   (the same as ``surrol-data repair DIR``); one being written by a live process is refused.
+1. :func:`ensure_finished`: a dataset left by a killed recording (its journal holds episodes, or its last session
+   never ended) is repaired automatically, saying so on stderr (the same as ``surrol-data repair DIR``); one on a
+   disk this process cannot write is repaired in a temporary view instead (:mod:`readonly_view`), never in place.
+   A *finished* dataset whose files are damaged (bit rot, a bad copy) is refused with the repair command to run:
+   reading never modifies what is read. One being written by a live process is refused.
 2. :func:`require_valid`: the cheap checks of :func:`surrol_data.datasets.validate.validate_dataset` (no env,
    no lerobot import, videos only demuxed); a damaged dataset is refused with the validator's own messages.
+
+Both return the folder to read: the dataset itself, or the repaired view of a read-only one.
 """
 
 from __future__ import annotations
@@ -20,26 +25,40 @@ def _stderr(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
-def ensure_finished(root: str | Path, notify: Callable[[str], None] = _stderr) -> None:
-    """Repair ``root`` if a killed writer left it unfinished (see :func:`surrol_data.datasets.repair.is_unfinished`)."""
-    from surrol_data.datasets.repair import is_unfinished, repair
+def ensure_finished(root: str | Path, notify: Callable[[str], None] = _stderr) -> Path:
+    """Repair ``root`` if a killed recording left it unfinished (see the module doc); the folder to read."""
     from surrol_data.datasets.lock import writer_pid
+    from surrol_data.datasets.repair import is_unfinished, killed_recording, repair
 
     root = Path(root)
     if not (root / "meta").is_dir():
-        return  # not a dataset: the caller's own check says so
+        return root  # not a dataset: the caller's own check says so
     holder = writer_pid(root)
     if holder is not None:
         raise DatasetError(f"{root} is being written by another process (pid {holder or '?'}); wait until it "
                            "has finished")
     reasons = is_unfinished(root)
     if not reasons:
-        return
-    notify(f"{root} was left unfinished by a killed recording ({'; '.join(reasons)}): repairing it "
-           f"(`surrol-data repair {root}`)")
-    report = repair(root)
+        return root
+    killed = killed_recording(root)
+    if not killed:
+        raise DatasetError(f"{root} was damaged after its recording finished ({'; '.join(reasons)}); nothing was "
+                           f"changed: run `surrol-data repair {root}` to keep its intact episodes")
+    from surrol_data.datasets.readonly_view import is_writable, writable_view
+
+    target = root
+    if not is_writable(root):
+        target = writable_view(root)
+        notify(f"{root} was left unfinished by a killed recording ({'; '.join(killed)}) and cannot be written "
+               f"here: reading a repaired copy of it (in {target.parent}; the dataset is not changed; "
+               f"`surrol-data repair {root}` on a writable copy keeps the repair)")
+    else:
+        notify(f"{root} was left unfinished by a killed recording ({'; '.join(killed)}): repairing it "
+               f"(`surrol-data repair {root}`)")
+    report = repair(target)
     for line in report.lines():
         notify(f"  repair: {line}")
+    return target
 
 
 def require_dataset_folder(root: str | Path) -> None:
@@ -56,16 +75,17 @@ def require_dataset_folder(root: str | Path) -> None:
                            "that holds meta/ and data/")
 
 
-def require_valid(root: str | Path, notify: Callable[[str], None] = _stderr) -> None:
+def require_valid(root: str | Path, notify: Callable[[str], None] = _stderr) -> Path:
     """:func:`require_dataset_folder`, :func:`ensure_finished`, then the cheap validation checks; DatasetError
-    listing every problem found."""
+    listing every problem found. Returns the folder to read (see :func:`ensure_finished`)."""
     from surrol_data.datasets.validate import validate_dataset
 
     require_dataset_folder(root)
-    ensure_finished(root, notify)
-    problems = validate_dataset(root, check_reward=False, check_lerobot=False)
+    target = ensure_finished(root, notify)
+    problems = validate_dataset(target, check_reward=False, check_lerobot=False)
     if problems:
         listed = "\n  ".join(str(p) for p in problems)
         raise DatasetError(f"{root} is damaged ({len(problems)} problem(s)); nothing was done:\n  {listed}\n"
                            f"Run `surrol-data validate {root}` for the full check, `surrol-data repair {root}` "
                            "to keep its intact episodes.")
+    return target

@@ -135,13 +135,15 @@ def _fmt(value: float, digits: int = 1) -> str:
     return "–" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
 
 
-def render_info(root: str | Path):
+def render_info(root: str | Path, label: str | Path | None = None):
     """A rich renderable (tables) of :func:`summarize`; print it with ``rich.console.Console().print``."""
     from rich import box
     from rich.console import Group
     from rich.table import Table
 
     s = summarize(root)
+    if label is not None:  # the dataset the user named, when ``root`` is the repaired view of a read-only one
+        s["root"] = str(label)
     totals = Table(title=f"Dataset {s['root']}", show_header=False)
     totals.add_column("", style="bold")
     totals.add_column("")

@@ -130,7 +130,8 @@ def install_fast_save() -> None:
 def attach_episode_columns(ds, columns) -> None:
     """Make ``ds`` write ``columns()`` (a dict) into each episode's ``meta/episodes`` row, flushed per episode.
 
-    ``columns`` is called inside every ``save_episode``; it raises to refuse an episode saved without them.
+    ``columns(episode_metadata)`` is called inside every ``save_episode``, after lerobot has written the episode's
+    videos (``episode_metadata`` says where: ``videos/<key>/*``); it raises to refuse an episode saved without them.
     Call again after each ``resume()`` (a new metadata object).
     """
     meta = ds.meta
@@ -144,7 +145,7 @@ def attach_episode_columns(ds, columns) -> None:
 
     def save_episode_with_columns(episode_index, episode_length, episode_tasks, episode_stats, episode_metadata):
         return original(episode_index, episode_length, episode_tasks, episode_stats,
-                        {**episode_metadata, **columns()})
+                        {**episode_metadata, **columns(episode_metadata)})
 
     meta.save_episode = save_episode_with_columns
 

@@ -7,6 +7,7 @@ held lock always means a live writer and a free lock on an unfinished dataset me
 
 from __future__ import annotations
 
+import errno
 import fcntl
 import os
 from pathlib import Path
@@ -25,7 +26,13 @@ class DatasetLock:
 
     def acquire(self) -> DatasetLock:
         path = self.root / LOCK_NAME
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as e:
+            if e.errno not in (errno.EROFS, errno.EACCES, errno.EPERM):
+                raise
+            raise DatasetError(f"{self.root} cannot be written here ({e.strerror}): a read-only disk or folder; "
+                               "commands that only read it work, to change it copy it to a writable folder") from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:

@@ -102,6 +102,15 @@ def _check_compatible(readers: list[DatasetReader]) -> dict:
             "robot_type": first.info.get("robot_type") or "dvrk_psm"}
 
 
+def _refuse_out_inside(out: Path, inputs: list[Path]) -> None:
+    """A new dataset written inside an input would become part of the folder it is read from (and of every later
+    copy of it)."""
+    where = out.resolve()
+    for root in inputs:
+        if where.is_relative_to(root):
+            raise ValueError(f"--out {out} is inside the input dataset {root}: choose a folder outside it")
+
+
 def _names(feature: dict):
     names = feature.get("names")
     return list(names.values())[0] if isinstance(names, dict) and len(names) == 1 else names
@@ -126,9 +135,10 @@ def copy_episodes(selection: list[tuple[str | Path, list[int]]], out: str | Path
     out = Path(out)
     if out.exists():
         raise FileExistsError(f"{out} already exists: choose a new output folder")
-    for root in dict.fromkeys(Path(r).resolve() for r, _ in selection):
-        require_valid(root)  # cheap checks: a damaged input is refused before anything is written
-    readers = [DatasetReader(root) for root, _ in selection]
+    _refuse_out_inside(out, [Path(r).resolve() for r, _ in selection])
+    # cheap checks: a damaged input is refused before anything is written; read: the folder to read it from
+    read = {root: require_valid(root) for root in dict.fromkeys(Path(r).resolve() for r, _ in selection)}
+    readers = [DatasetReader(read[Path(root).resolve()]) for root, _ in selection]
     for reader, (_, episodes) in zip(readers, selection, strict=True):
         for ep in episodes:
             reader._episode_row(ep)  # DatasetError naming a missing episode, before anything is written
@@ -214,9 +224,10 @@ def merge_datasets(out: str | Path, inputs: list[str | Path], *, command: str | 
     if out.exists():
         raise FileExistsError(f"{out} already exists: choose a new output folder"
                               + (" (it is one of the inputs)" if out.resolve() in resolved else ""))
-    for root in dict.fromkeys(resolved):
-        require_valid(root)  # a damaged input is refused (or a killed recording repaired) before anything is written
-    readers = [DatasetReader(root) for root in inputs]
+    _refuse_out_inside(out, resolved)
+    # a damaged input is refused (or a killed recording repaired) before anything is written
+    read = {root: require_valid(root) for root in dict.fromkeys(resolved)}
+    readers = [DatasetReader(read[root]) for root in resolved]
     shared = _check_compatible(readers)
     selection = [(reader.root, reader.select()) for reader in readers]
     kept, duplicates = _without_duplicates(readers, selection)
@@ -244,7 +255,7 @@ def _aggregate(readers: list[DatasetReader], out: Path, shared: dict, *, command
     import shutil
 
     from surrol_data.datasets.card import write_dataset_card
-    from surrol_data.datasets.hub_offline import hub_offline, quiet_video_encoder
+    from surrol_data.datasets.hub_offline import hub_offline, lerobot_root, local_repo_id, quiet_video_encoder
     from surrol_data.datasets.lock import DatasetLock, writer_pid
     from surrol_data.datasets.schema import package_version, utc_now_iso
     from surrol_data.datasets.writer import _write_json_atomic, git_commit
@@ -255,15 +266,16 @@ def _aggregate(readers: list[DatasetReader], out: Path, shared: dict, *, command
             raise DatasetError(f"another merge into {out} is running (pid {writer_pid(staging) or '?'}); wait for it")
         shutil.rmtree(staging)  # left by a killed merge: it never became an output, nothing in it is anyone's data
     staging.mkdir(parents=True)
-    built = staging / out.name
+    built = staging / "dataset"  # a plain name for lerobot (``out``'s may hold [1] or spaces); renamed below
     started = utc_now_iso()
     try:
         with DatasetLock(staging):
             from lerobot.datasets.aggregate import aggregate_datasets
 
             with hub_offline(), quiet_video_encoder(), _lerobot_progress(progress):
-                aggregate_datasets([f"local/{r.root.name}" for r in readers], f"local/{out.name}",
-                                   roots=[r.root for r in readers], aggr_root=built)
+                aggregate_datasets([local_repo_id(r.root) for r in readers], local_repo_id(out),
+                                   roots=[lerobot_root(r.root) for r in readers],
+                                   aggr_root=lerobot_root(staging) / built.name)
             _restore_frame_types(built, readers[0].root)
             _point_episode_rows_at_their_files(built)
             provenance_of, offset = [], 0
@@ -274,11 +286,13 @@ def _aggregate(readers: list[DatasetReader], out: Path, shared: dict, *, command
                     _copy_trace(reader.root, int(ep), built, offset + int(ep))
                 offset += len(reader)
             side = read_sidecar(readers[0].root)
-            for stale in ("checkpoint", "sessions", "derived_from", "created_at"):
+            for stale in ("checkpoint", "sessions", "derived_from", "created_at", "seals"):
                 side.pop(stale, None)
+            if all(read_sidecar(r.root).get("seals") for r in readers):
+                side["seals"] = 1  # every episode came with its seals (an unsealed input's episodes have none)
             info_text = (built / "meta" / "info.json").read_text()
             now = utc_now_iso()
-            side.update({"repo_id": f"local/{out.name}", "created_at": now, "updated_at": now,
+            side.update({"repo_id": local_repo_id(out), "created_at": now, "updated_at": now,
                          "package_version": package_version(),
                          "sessions": [{"started_at": started, "ended_at": now, "command": command,
                                        "git_commit": git_commit(), "package_version": package_version(),
@@ -396,7 +410,7 @@ def filter_dataset(src: str | Path, out: str | Path, where: str | None, *, comma
 
     if where is None and episodes is None:
         raise ValueError("say which episodes to keep: --where EXPRESSION and/or --episodes 0,3,5-9")
-    require_valid(src)
+    src = require_valid(src)
     chosen = chosen_episodes(DatasetReader(src), where, episodes)
     return copy_episodes([(src, chosen)], out, operation="filter", where=where, command=command,
                          progress=progress)
@@ -412,7 +426,7 @@ def split_dataset(src: str | Path, out: str | Path, valid_fraction: float = 0.1,
         raise FileExistsError(f"{out} already exists: choose a new output folder")
     from surrol_data.datasets.guard import require_valid
 
-    require_valid(src)
+    src = require_valid(src)
     reader = DatasetReader(src)
     chosen = reader.episodes[reader.episodes["episode_index"].isin(reader.select(where))] if where \
         else reader.episodes

@@ -11,6 +11,7 @@ What each column holds is fixed by :mod:`surrol_data.datasets.schema`.
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
@@ -34,6 +35,7 @@ from surrol_data.datasets.schema import (
 from surrol_data.datasets.trajectory import DEVICE_FLAGS, EVENT_FLAGS, INTERVENTION, Trajectory
 
 INFO_PATH = "meta/info.json"
+CODEBASE_VERSION = "v3.0"  # the only LeRobot format read: what lerobot 0.6 writes (v3.1 or "v30" are not it)
 EPISODES_DIR = "meta/episodes"
 DATA_DIR = "data"
 
@@ -95,9 +97,13 @@ def load_info(root: str | Path) -> dict:
         raise DatasetError(f"{path} holds a JSON {type(info).__name__}, not LeRobot's info object; restore it or "
                            "run `surrol-data repair` (it rewrites info.json from the recorder's saved copy)")
     version = str(info.get("codebase_version", ""))
-    if not version.startswith("v3"):
-        raise DatasetError(f"{root} is a LeRobot dataset of codebase_version {version!r}; expected v3.x "
-                           "(convert it with lerobot's convert_dataset_v21_to_v30)")
+    if version != CODEBASE_VERSION:
+        if re.fullmatch(r"v[12](\.\d+)*", version):
+            raise DatasetError(f"{root} is a LeRobot dataset of codebase_version {version!r}; expected "
+                               f"{CODEBASE_VERSION!r} (convert it with lerobot's convert_dataset_v21_to_v30)")
+        raise DatasetError(f"{root}: meta/info.json says codebase_version {version!r}; surrol_data reads "
+                           f"{CODEBASE_VERSION!r}, the format lerobot 0.6 writes (a newer or unknown format: read it "
+                           "with the lerobot that wrote it, or restore info.json if it was edited)")
     return info
 
 

@@ -123,19 +123,27 @@ def is_unfinished(root: str | Path) -> list[str]:
     """Why ``root`` looks like it was left by a killed writer (empty list: it does not)."""
     root = Path(root)
     reasons = []
-    if journal.entries(root):
-        reasons.append(f"{len(journal.entries(root))} journal entr(ies) of episodes not yet in the dataset files")
     for sub in (DATA_DIR, EPISODES_DIR):
         for path in parquet_files(root, sub):
             try:
                 pq.read_metadata(path)
             except (pa.ArrowInvalid, OSError):
                 reasons.append(f"{path.relative_to(root)} has no parquet footer")
-    side = read_sidecar(root)
-    sessions = side.get("sessions") or []
+    return killed_recording(root) + reasons
+
+
+def killed_recording(root: str | Path) -> list[str]:
+    """The signs that a recording of ``root`` was killed (empty: every recording of it finished): episodes in its
+    journal, or a last session that never ended. Files damaged without these signs were damaged later (bit rot,
+    a bad copy): the commands that read a dataset refuse those and leave the repair to the user."""
+    root = Path(root)
+    signs = []
+    if journal.entries(root):
+        signs.append(f"{len(journal.entries(root))} journal entr(ies) of episodes not yet in the dataset files")
+    sessions = read_sidecar(root).get("sessions") or []
     if sessions and "ended_at" not in sessions[-1]:
-        reasons.append("its last recording session never ended")
-    return reasons
+        signs.append("its last recording session never ended")
+    return signs
 
 
 def repair(root: str | Path) -> RepairReport:
@@ -279,9 +287,16 @@ def _cut_back(root: Path):
             if pc.all(keep).as_py():
                 continue
             filtered = table.filter(keep)
+            tmp = path.with_name(path.name + ".tmp")
+            if filtered.num_rows:
+                try:
+                    write(filtered, tmp)  # whole before the original moves: a full disk leaves the original
+                except BaseException:
+                    tmp.unlink(missing_ok=True)
+                    raise
             move_aside(path)
             if filtered.num_rows:
-                write(filtered, path)
+                os.replace(tmp, path)
     referenced = {video_file(r, v) for r in kept_rows for v in video_keys}
     if (root / "videos").is_dir():
         for path in sorted((root / "videos").rglob("*.mp4")):

@@ -306,6 +306,32 @@ def content_hash(frames: dict[str, np.ndarray], features: dict) -> str:
     return digest.hexdigest()[:32]
 
 
+# Seals: per-episode columns of meta/episodes that make an edit after recording detectable. ``content_hash`` covers
+# the frames (and finds duplicates); ``seal/provenance`` covers every provenance value, content_hash included, so
+# it chains to the frames; ``seal/<video key>`` covers the compressed packets of the episode's video segment.
+# Datasets recorded before seals existed have none (``validate`` checks whatever seals a dataset holds; one
+# whose sidecar says ``"seals": 1`` must hold them all).
+SEAL_PREFIX = "seal/"
+PROVENANCE_SEAL = SEAL_PREFIX + "provenance"
+
+
+def video_seal_column(video_key: str) -> str:
+    return SEAL_PREFIX + video_key
+
+
+def provenance_seal(provenance: dict) -> str:
+    """SHA-256 (hex, 32 chars) of an episode's :data:`PROVENANCE_COLUMNS` values (canonical JSON). Equal for the
+    row as recorded and as read back (parquet keeps each python type exactly); any edited value changes it."""
+    import hashlib
+
+    values = {}
+    for key, typ in PROVENANCE_COLUMNS.items():
+        value = provenance[key]
+        values[key] = value.item() if isinstance(value, np.generic) else value
+    text = json.dumps(values, sort_keys=True, separators=(",", ":"), allow_nan=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:32]
+
+
 def utc_now_iso() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds").replace("+00:00", "Z")
 

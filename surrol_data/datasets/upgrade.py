@@ -18,6 +18,7 @@ beside the original and swapped in only once it validates, so an interrupted upg
 
 from __future__ import annotations
 
+import glob
 import json
 import os
 import shutil
@@ -97,18 +98,23 @@ def upgrade_dataset(root: str | Path, keep_backup: bool = False) -> UpgradeRepor
     from surrol_data.datasets.guard import ensure_finished
     from surrol_data.datasets.lock import DatasetLock
 
-    root = Path(root)
-    info = load_info(root)
+    given = Path(root)
+    info = load_info(given)
     if not is_schema1(info["features"]):
-        return UpgradeReport(root, from_version=SCHEMA_VERSION)
-    ensure_finished(root)
+        return UpgradeReport(given, from_version=SCHEMA_VERSION)
+    ensure_finished(given)
+    # The folder itself, not a symlink to it: the swap below renames folders, and renaming a link would put the
+    # upgraded dataset where the link was and leave the original unchanged behind it.
+    root = given.resolve()
     lock = DatasetLock(root)
-    lock.acquire()
-    work = root.parent / f".{root.name}.upgrade-{os.getpid()}"
+    lock.acquire()  # held until the swap is done: no second upgrade of this dataset runs meanwhile
     try:
-        if work.exists():
-            shutil.rmtree(work)
-        report = UpgradeReport(root, from_version=1)
+        report = UpgradeReport(given, from_version=1)
+        removed = _remove_leftovers(root)
+        if removed:
+            report.notes.append(f"removed {len(removed)} leftover cop(ies) of an earlier, killed upgrade: "
+                                + ", ".join(p.name for p in removed))
+        work = root.parent / f"{_WORK_PREFIX.format(name=root.name)}{os.getpid()}"
         try:
             _build(root, work, info, report)
         except BaseException:
@@ -117,23 +123,33 @@ def upgrade_dataset(root: str | Path, keep_backup: bool = False) -> UpgradeRepor
         problems = _validate(work)
         if problems:
             listed = "\n  ".join(problems)
-            raise DatasetError(f"the upgraded copy of {root} does not validate, so the original is left as it was "
+            raise DatasetError(f"the upgraded copy of {given} does not validate, so the original is left as it was "
                                f"(the copy is at {work}):\n  {listed}")
-    except BaseException:
+        backup = root.parent / f"{root.name}.schema1"
+        if backup.exists():
+            raise DatasetError(f"{backup} already exists (an earlier upgrade's backup): move it away and run again; "
+                               f"the upgraded copy is at {work}")
+        os.replace(root, backup)
+        os.replace(work, root)
+    finally:
         lock.release()
-        raise
-    lock.release()
-    backup = root.parent / f"{root.name}.schema1"
-    if backup.exists():
-        raise DatasetError(f"{backup} already exists (an earlier upgrade's backup): move it away and run again; the "
-                           f"upgraded copy is at {work}")
-    os.replace(root, backup)
-    os.replace(work, root)
     if keep_backup:
         report.backup = backup
     else:
         shutil.rmtree(backup)
     return report
+
+
+_WORK_PREFIX = ".{name}.upgrade-"
+
+
+def _remove_leftovers(root: Path) -> list[Path]:
+    """The hidden copies that killed upgrades of ``root`` left beside it (called with ``root``'s lock held, so no
+    upgrade of it is running: every such copy is a leftover, and the original was never touched)."""
+    found = sorted(root.parent.glob(glob.escape(_WORK_PREFIX.format(name=root.name)) + "*"))
+    for path in found:
+        shutil.rmtree(path, ignore_errors=True)
+    return found
 
 
 def _validate(root: Path) -> list[str]:

@@ -11,6 +11,8 @@ Checks, in order (a check that makes the later ones meaningless stops the run):
 5. ``counts``: info.json totals, episodes metadata rows and data rows agree; indices are contiguous.
 6. ``values``: no NaN / inf in any float frame column; ``next.observation.*`` of frame t equals
    ``observation.*`` of frame t+1 within an episode.
+   ``integrity``: each episode's provenance and video segment are what was recorded (the ``seal/*`` columns,
+   :mod:`surrol_data.datasets.seals`), and a haptic episode's device trace says what its provenance says.
 7. ``reward``: ``next.reward`` equals the task's ``compute_reward(next achieved goal, desired goal)`` (the env
    is made with ``gymnasium.make(env_id)`` from the dataset's metadata).
 8. ``lerobot``: ``LeRobotDataset(repo_id, root=DIR)`` opens it offline and reads its first and last frame.
@@ -27,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from surrol_data.datasets.info import read_sidecar
@@ -40,8 +43,10 @@ from surrol_data.datasets.reader import (
     parquet_files,
     trajectory_from_table,
 )
+from surrol_data.datasets.seals import provenance_mismatches, trace_disagreements, video_mismatches
 from surrol_data.datasets.schema import (
     PROVENANCE_CHOICES,
+    PROVENANCE_SEAL,
     PROVENANCE_COLUMNS,
     FPS,
     PROVENANCE_PREFIX,
@@ -137,7 +142,8 @@ def _validate(root: Path, check_reward: bool, check_lerobot: bool, check_videos:
         meta_tables.append(table.append_column("__meta_file", pa.array([str(path.relative_to(root))] * table.num_rows)))
     meta_full = pa.concat_tables(meta_tables, promote_options="default").sort_by("episode_index")
     meta = meta_full.select([n for n in meta_full.column_names if not n.startswith("stats/")])
-    problems += _check_provenance(meta)
+    provenance_problems = _check_provenance(meta)
+    problems += provenance_problems
     column_problems = _check_columns(root, info)
     if column_problems:
         return problems + column_problems
@@ -158,9 +164,12 @@ def _validate(root: Path, check_reward: bool, check_lerobot: bool, check_videos:
     side = read_sidecar(root)
     problems += _check_sidecar(root, side, meta)
     problems += _check_traces(root, meta, data)
+    if not provenance_problems:  # a column of the wrong type or with nulls is reported once, above
+        problems += _check_provenance_seals(meta, bool(side.get("seals")))
     if check_videos:
         stage("videos")
         problems += _check_videos(root, info, meta_full)
+        problems += _check_video_seals(root, info, meta, bool(side.get("seals")))
     if check_reward:
         stage("reward")
         problems += _check_reward(side, meta, data)
@@ -270,8 +279,16 @@ def _check_columns(root: Path, info: dict) -> list[Problem]:
                                         f"or {REPAIR_HINT}"))
                 continue
             typ = schema.field(name).type
-            width = typ.list_size if pa.types.is_fixed_size_list(typ) else 1
-            declared = int(np.prod(ft["shape"])) if ft["dtype"] != "image" else width
+            declared = int(np.prod(ft["shape"]))
+            if pa.types.is_list(typ) or pa.types.is_large_list(typ):
+                # lerobot's own tools (aggregate_datasets, lerobot-edit-dataset) write vectors through pandas as
+                # variable-length lists: the same values, so accepted when every row holds the declared count
+                lengths = set(pc.list_value_length(pq.read_table(path, columns=[name]).column(0)).to_pylist())
+                width = lengths.pop() if len(lengths) == 1 else f"{sorted(map(str, lengths))} (varying)"
+            else:
+                width = typ.list_size if pa.types.is_fixed_size_list(typ) else 1
+            if ft["dtype"] == "image":
+                declared = width
             if width != declared:
                 problems.append(Problem("schema", f"meta/info.json features.{name}.shape",
                                         f"declares {list(ft['shape'])} but {path.relative_to(root)} stores {width} "
@@ -551,6 +568,8 @@ def _check_traces(root: Path, meta: pa.Table, data: pa.Table) -> list[Problem]:
         return []
     problems = []
     sources = meta.column(PROVENANCE_PREFIX + "source").to_pylist()
+    provenance = {name: meta.column(PROVENANCE_PREFIX + name).to_pylist() for name in PROVENANCE_COLUMNS
+                  if PROVENANCE_PREFIX + name in meta.column_names}
     actions = column_to_numpy(data.column("action")).reshape(data.num_rows, -1)
     for row, (ep, start, length) in enumerate(_episode_slices(meta)):
         path = folder / f"episode_{ep:06d}.npz"
@@ -564,11 +583,18 @@ def _check_traces(root: Path, meta: pa.Table, data: pa.Table) -> list[Problem]:
         try:
             with np.load(path, allow_pickle=False) as z:
                 recorded = np.asarray(z["actions"], np.float32)
-                json.loads(str(z["meta"]))
+                trace_meta = json.loads(str(z["meta"]))
         except Exception as e:  # noqa: BLE001
             problems.append(Problem("traces", rel, f"cannot be read ({type(e).__name__}); episode {ep}'s device "
                                                    "trace is damaged: restore it from a copy"))
             continue
+        said = {name: values[row] for name, values in provenance.items()}
+        differ = trace_disagreements(trace_meta if isinstance(trace_meta, dict) else {}, said)
+        if differ:
+            problems.append(Problem("integrity", rel, f"episode {ep}: its device trace contradicts its provenance ("
+                                                      + "; ".join(differ) + "): the provenance in meta/episodes was "
+                                                      "edited, or the trace belongs to another episode; restore "
+                                                      "the dataset from a copy"))
         if recorded.shape != actions[start:start + length].shape or not np.allclose(
                 recorded, actions[start:start + length], atol=1e-6):
             problems.append(Problem("traces", rel, f"its actions are not episode {ep}'s actions (a trace of another "
@@ -581,6 +607,36 @@ def _check_traces(root: Path, meta: pa.Table, data: pa.Table) -> list[Problem]:
         if not 0 <= ep < meta.num_rows:
             problems.append(Problem("traces", str(path.relative_to(root)), "belongs to no episode of the dataset "
                                                                            f"; {REPAIR_HINT} moves it aside"))
+    return problems
+
+
+_RESTORE = "restore the dataset from a copy, or drop those episodes with `surrol-data filter`"
+
+
+def _check_provenance_seals(meta: pa.Table, sealed: bool) -> list[Problem]:
+    bad, missing = provenance_mismatches(meta, sealed)
+    problems = []
+    if bad:
+        problems.append(Problem("integrity", f"meta/episodes {PROVENANCE_SEAL}", f"episode(s) {_listed(bad)}: the "
+                                "provenance is not what was recorded (a value such as operator_id or skill was "
+                                f"edited after recording); {_RESTORE}"))
+    if missing:
+        problems.append(Problem("integrity", f"meta/episodes {PROVENANCE_SEAL}", f"episode(s) {_listed(missing)} "
+                                f"have no seal, though {SIDECAR_PATH} says every episode is sealed (the column was "
+                                f"removed or emptied); {_RESTORE}"))
+    return problems
+
+
+def _check_video_seals(root: Path, info: dict, meta: pa.Table, sealed: bool) -> list[Problem]:
+    problems = []
+    for rel, (bad, missing) in video_mismatches(root, info, meta, sealed).items():
+        if bad:
+            problems.append(Problem("integrity", rel, f"episode(s) {_listed(bad)}: the camera frames in this file "
+                                    "are not the ones recorded with them (another recording's video copied over "
+                                    f"it, or re-encoded); {_RESTORE}"))
+        if missing:
+            problems.append(Problem("integrity", rel, f"episode(s) {_listed(missing)} have no video seal, though "
+                                    f"{SIDECAR_PATH} says every episode is sealed; {_RESTORE}"))
     return problems
 
 
@@ -735,14 +791,14 @@ def _check_reward(side: dict, meta: pa.Table, data: pa.Table) -> list[Problem]:
 
 
 def _check_lerobot(root: Path, info: dict) -> list[Problem]:
-    from surrol_data.datasets.hub_offline import hub_offline
+    from surrol_data.datasets.hub_offline import hub_offline, lerobot_root, usable_repo_id
 
     try:
         from surrol_data.datasets.writer import VIDEO_BACKEND, _lerobot_dataset_class
 
         side = read_sidecar(root)
         with hub_offline():
-            ds = _lerobot_dataset_class()(side.get("repo_id") or f"local/{root.name}", root=root,
+            ds = _lerobot_dataset_class()(usable_repo_id(side.get("repo_id"), root), root=lerobot_root(root),
                                           video_backend=VIDEO_BACKEND)
         if ds.num_episodes != int(info["total_episodes"]) or ds.num_frames != int(info["total_frames"]):
             return [Problem("lerobot", str(root), f"LeRobotDataset sees {ds.num_episodes} episodes / {ds.num_frames} "

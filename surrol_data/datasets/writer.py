@@ -70,7 +70,7 @@ import pyarrow.parquet as pq
 
 from surrol_data.datasets import journal
 from surrol_data.datasets.card import write_dataset_card
-from surrol_data.datasets.hub_offline import hub_offline, quiet_video_encoder
+from surrol_data.datasets.hub_offline import hub_offline, lerobot_root, quiet_video_encoder, usable_repo_id
 from surrol_data.datasets import lerobot_compat
 from surrol_data.datasets.info import read_sidecar
 from surrol_data.datasets.lock import DatasetLock
@@ -91,6 +91,7 @@ from surrol_data.datasets.schema import (
     POLICY_ACTION,
     PROVENANCE_COLUMNS,
     PROVENANCE_PREFIX,
+    PROVENANCE_SEAL,
     SCHEMA_VERSION,
     SIDECAR_PATH,
     content_hash,
@@ -99,7 +100,9 @@ from surrol_data.datasets.schema import (
     is_schema1,
     normalize_provenance,
     package_version,
+    provenance_seal,
     utc_now_iso,
+    video_seal_column,
 )
 from surrol_data.datasets.trajectory import DEVICE_FLAGS, EVENT_FLAGS, INTERVENTION, Trajectory
 
@@ -168,7 +171,7 @@ class DatasetWriter:
         # The images' camera version (schema.CAMERA_VERSION): what this code renders, unless the episodes are
         # copied from a dataset recorded with another (merge, split, repair pass the source's).
         self.camera_version = camera_version
-        self.repo_id = repo_id or f"local/{self.root.resolve().name}"
+        self.repo_id = usable_repo_id(repo_id, self.root)  # lerobot tries the Hub for an id it refuses
         self.task, self.env_id, self.task_description = task, env_id, task_description
         self.robot_type = robot_type
         self.append = append
@@ -220,11 +223,16 @@ class DatasetWriter:
                                  "and reframed; see surrol_data.datasets.schema.CAMERA_VERSION); record into a new "
                                  "dataset")
             features = {k: v for k, v in existing.items() if k not in _LEROBOT_DEFAULT_FEATURES}
+            # Episodes of one dataset are sealed all or none (one episodes-table schema): a dataset recorded
+            # before seals existed takes new episodes unsealed (`surrol-data filter` makes a sealed copy).
+            self._sealed = bool(sidecar.get("seals"))
         elif features is None:
             raise ValueError("DatasetRecorder: features are required to create a dataset "
                              "(use surrol_data.datasets.schema.frame_features)")
         self.features = features
         self.dims = dims_from_features(features)
+        if not self._exists:
+            self._sealed = True
 
         self._ds = None
         self._git_commit = ""
@@ -264,7 +272,8 @@ class DatasetWriter:
             self._lock.acquire()  # before touching anything: a second writer gets a clear error
             try:
                 with hub_offline():
-                    self._ds = LeRobotDataset.resume(self.repo_id, root=self.root, video_backend=VIDEO_BACKEND)
+                    self._ds = LeRobotDataset.resume(self.repo_id, root=lerobot_root(self.root),
+                                                     video_backend=VIDEO_BACKEND)
             except BaseException:
                 self._lock.release()
                 raise
@@ -312,11 +321,23 @@ class DatasetWriter:
     def _prepare_writer(self) -> None:
         lerobot_compat.attach_episode_columns(self._ds, self._episode_columns)
 
-    def _episode_columns(self) -> dict:
+    def _episode_columns(self, episode_metadata: dict) -> dict:
         if self._pending_columns is None:
             raise RuntimeError("episode saved without provenance: use DatasetRecorder.record, not "
                                "the LeRobotDataset directly")
-        return self._pending_columns
+        columns = dict(self._pending_columns)
+        if self._sealed:
+            from surrol_data.datasets.video import segment_digest
+
+            for cam in self.dims["cameras"]:
+                key = f"observation.images.{cam}"
+                rel = self._ds.meta.video_path.format(video_key=key,
+                                                      chunk_index=episode_metadata[f"videos/{key}/chunk_index"],
+                                                      file_index=episode_metadata[f"videos/{key}/file_index"])
+                columns[video_seal_column(key)] = segment_digest(
+                    self.root / rel, episode_metadata[f"videos/{key}/from_timestamp"],
+                    episode_metadata[f"videos/{key}/to_timestamp"], FPS)
+        return columns
 
     # ------------------------------------------------------------------ signals
 
@@ -407,6 +428,8 @@ class DatasetWriter:
             # loses nothing: repair() replays the journal entry if the dataset files did not get the episode.
             journal.write_entry(self.root, episode_index, traj, prov)
             self._pending_columns = {PROVENANCE_PREFIX + k: v for k, v in prov.items()}
+            if self._sealed:
+                self._pending_columns[PROVENANCE_SEAL] = provenance_seal(prov)
             try:
                 with hub_offline(), quiet_video_encoder():
                     ds.save_episode(episode_data=episode_data)
@@ -431,7 +454,7 @@ class DatasetWriter:
             if not lerobot_compat.close_files_and_continue(self._ds):
                 self._ds.finalize()
                 with hub_offline():
-                    self._ds = _lerobot_dataset_class().resume(self.repo_id, root=self.root,
+                    self._ds = _lerobot_dataset_class().resume(self.repo_id, root=lerobot_root(self.root),
                                                                video_backend=VIDEO_BACKEND)
                 self._prepare_writer()
             self._durable = self._ds.meta.total_episodes
@@ -530,6 +553,8 @@ class DatasetWriter:
         if self.dims["cameras"]:
             side["camera_version"] = self.camera_version
         side.setdefault("created_at", side["updated_at"])
+        if self._sealed:
+            side["seals"] = 1  # every episode carries seal/* columns (see schema.provenance_seal)
         sessions = side.setdefault("sessions", [])
         if sessions and sessions[-1].get("started_at") == self._session.get("started_at"):
             sessions[-1] = dict(self._session)

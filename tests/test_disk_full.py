@@ -1,0 +1,75 @@
+"""A full disk is a one-line error with nothing lost: ``collect`` into a small tmpfs stops with one line, ``info`` and
+``repair`` on the full disk say one line (or succeed), and once there is space again every episode recorded before
+the disk filled is in the repaired dataset. Runs in a private mount namespace (``unshare --mount``, root)."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import pytest
+
+import private_mounts
+
+_COMMANDS = """
+import json, sys
+from pathlib import Path
+from typer.testing import CliRunner
+from surrol_data.cli import app
+from surrol_data.datasets import journal
+root, phase = Path(sys.argv[1]), sys.argv[2]
+runner = CliRunner()
+
+def run(*args):
+    r = runner.invoke(app, list(args))
+    return {"code": r.exit_code, "output": r.output,
+            "exception": None if r.exception is None or isinstance(r.exception, SystemExit) else repr(r.exception)}
+
+results = {}
+if phase == "full":
+    results["collect"] = run("collect", "--source", "script", "--task", "NeedleReach", "--num-episodes", "500",
+                             "--max-steps", "15", "--keep-failures", "--out", str(root))
+    side = json.loads((root / "meta" / "surrol_data.json").read_text())
+    durable = int(side["checkpoint"]["episodes"])
+    results["recorded"] = durable + len([i for i, _ in journal.entries(root) if i >= durable])
+    results["info"] = run("info", str(root))
+    results["repair"] = run("repair", str(root))
+else:
+    results["repair"] = run("repair", str(root))
+    results["validate"] = run("validate", str(root), "--no-lerobot", "--no-reward")
+    from surrol_data.datasets.reader import DatasetReader
+    results["episodes"] = len(DatasetReader(root))
+print("RESULTS " + json.dumps(results))
+"""
+
+
+def _one_line_error(result: dict) -> bool:
+    said = " ".join(result["output"].split())
+    return (result["exception"] is None and "Traceback" not in result["output"]
+            and (result["code"] == 0 or (result["code"] == 2 and said.count("error:") == 1)))
+
+
+def test_disk_full_is_one_line_and_loses_nothing(tmp_path):
+    why = private_mounts.skip_reason()
+    if why:
+        pytest.skip(why)
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    script = tmp_path / "commands.py"
+    script.write_text(_COMMANDS)
+    root = disk / "demos"
+    py = f"'{sys.executable}' '{script}' '{root}'"
+    shell = (f"mount -t tmpfs -o size=1m tmpfs '{disk}' && {py} full && "
+             f"mount -o remount,size=256m '{disk}' && {py} space")
+    run = private_mounts.run(shell, timeout=1200)
+    lines = [json.loads(line.removeprefix("RESULTS ")) for line in run.stdout.splitlines()
+             if line.startswith("RESULTS ")]
+    assert run.returncode == 0 and len(lines) == 2, run.stdout[-3000:] + run.stderr[-3000:]
+    full, space = lines
+    collect = " ".join(full["collect"]["output"].split())
+    assert full["collect"]["code"] == 2 and "no space left on the disk" in collect, collect
+    assert _one_line_error(full["collect"]) and full["recorded"] >= 1, full
+    for name in ("info", "repair"):
+        assert _one_line_error(full[name]), (name, full[name])
+    assert space["repair"]["code"] == 0 and space["validate"]["code"] == 0, space
+    assert space["episodes"] == full["recorded"]  # every episode recorded before the disk filled
