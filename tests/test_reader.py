@@ -145,7 +145,7 @@ def test_clear_errors_for_non_datasets(tmp_path):
     old = tmp_path / "old" / "meta"
     old.mkdir(parents=True)
     (old / "info.json").write_text(json.dumps({"codebase_version": "v2.1"}))
-    with pytest.raises(DatasetError, match="v2.1.*expected v3"):
+    with pytest.raises(DatasetError, match="'v2.1'.*expected 'v3.0'"):
         DatasetReader(tmp_path / "old")
 
 
