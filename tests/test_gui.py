@@ -80,6 +80,9 @@ def test_keyboard_keys_of_the_window_drive_the_tool(tmp_path):
             send(WindowKeys.DOWN_EVENT, ["escape"])
         return task.cont
 
+    # Panda3D's task manager is one per process: a "hand" task left by an earlier test in this process
+    # would press its own keys in this window
+    app.base.taskMgr.remove("hand")
     app.base.taskMgr.add(hand, "hand")
     app.exit_after_session = True   # Esc ends the session; the window would stay open for the next one
     app.play()

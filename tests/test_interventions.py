@@ -354,6 +354,9 @@ def test_gui_take_over_button_hands_the_arm_to_the_keyboard_and_back(tmp_path):
             app.buttons["exit"].commandFunc(None)
         return task.cont
 
+    # Panda3D's task manager is one per process: a "hand" task left by an earlier test in this process
+    # would press its own keys in this window
+    app.base.taskMgr.remove("hand")
     app.base.taskMgr.add(hand, "hand")
     app.exit_after_session = True
     app.play()
