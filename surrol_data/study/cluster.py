@@ -20,7 +20,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from surrol_data.slurm import ACTIVE, SlurmOptions, queue_states, submit_array, wait_for
+from surrol_data.slurm import ACTIVE, SlurmError, SlurmOptions, queue_states, submit_array, wait_for
 from surrol_data.study.demo_sets import demo_quality, demo_quality_markdown
 from surrol_data.study.runs import _checked_configs, finished_runs, prepare_demo_sets, study_spec, train_one_run
 from surrol_data.study.spec import StudySpec, parse_runs, run_name
@@ -55,7 +55,10 @@ def run_jobs(out: Path, spec: StudySpec) -> list[RunJob]:
     done = set(finished_runs(out, spec))
     jobs = submitted_jobs(out)
     pending = [jobs[r]["job_id"] for r in spec.run_order() if r in jobs and r not in done]
-    states = queue_states(pending) if pending else {}
+    try:
+        states = queue_states(pending) if pending else {}
+    except SlurmError:   # e.g. the results copied off the cluster: whether a job still runs cannot be told here
+        states = {job_id: "unknown (no squeue here)" for job_id in pending}
     rows = []
     for run in spec.run_order():
         entry = jobs.get(run, {})
