@@ -212,6 +212,7 @@ def _collect_shards(source, task, episodes, out, shards, launcher, seed, append,
                     kwargs) -> None:
     from surrol_data.collect.shards import collect_script_shards
     from surrol_data.datasets.reader import DatasetError
+    from surrol_data.extras import MissingExtra
     from surrol_data.slurm import SlurmError
 
     if source is not Source.script:
@@ -224,7 +225,7 @@ def _collect_shards(source, task, episodes, out, shards, launcher, seed, append,
     try:
         collect_script_shards(task, episodes, out, shards, seed=seed or 0, command=command, say=console.print,
                               slurm=slurm_options if launcher is Launcher.slurm else None, **kwargs)
-    except (ValueError, FileExistsError, RuntimeError, DatasetError, SlurmError) as e:
+    except (ValueError, FileExistsError, RuntimeError, DatasetError, SlurmError, MissingExtra) as e:
         _fail(str(e))
     console.print(f"recorded {episodes} episodes in {shards} shard(s) (disjoint seeds; kept in {out}.shards) and "
                   f"merged them into {out}")
@@ -557,7 +558,9 @@ def study(experiment: str = typer.Argument(..., help="A study experiment config:
         _fail("--launcher slurm submits runs; --report and --check-code run here: leave out --launcher slurm")
     if wait and not slurm:
         _fail("--wait waits for SLURM jobs: add --launcher slurm")
-    errors = (StudyReportError, DatasetError, ValueError, FileNotFoundError, RuntimeError, SlurmError)
+    from surrol_data.extras import MissingExtra
+
+    errors = (StudyReportError, DatasetError, ValueError, FileNotFoundError, RuntimeError, SlurmError, MissingExtra)
     failed = False
     try:
         if slurm:
