@@ -186,9 +186,15 @@ PartitionName={PARTITION} Nodes={self.node} Default=YES MaxTime=INFINITE State=U
         self.stop()
 
 
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
 if __name__ == "__main__":
+    signal.signal(signal.SIGTERM, _interrupt)   # `kill PID` stops the daemons too (a background job ignores SIGINT)
+    signal.signal(signal.SIGINT, _interrupt)
     with SlurmCluster() as c:
-        print(f"SLURM up: export SLURM_CONF={c.conf}   (Ctrl-C stops it)")
+        print(f"SLURM up: export SLURM_CONF={c.conf}   (Ctrl-C or kill {os.getpid()} stops it)", flush=True)
         try:
             signal.pause()
         except KeyboardInterrupt:
