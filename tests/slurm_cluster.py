@@ -48,6 +48,15 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
+def _own_session_dying_with_parent() -> None:
+    """In the daemon before it starts: its own session (a Ctrl-C at the terminal is the test's, not the daemon's),
+    and SIGTERM when the process that started it dies, so that a killed test run leaves no daemon behind."""
+    import ctypes
+
+    os.setsid()
+    ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)   # PR_SET_PDEATHSIG
+
+
 def _exe(name: str) -> str:
     return shutil.which(name) or str(Path("/usr/sbin", name))
 
@@ -115,7 +124,7 @@ PartitionName={PARTITION} Nodes={self.node} Default=YES MaxTime=INFINITE State=U
     def _start(self, name: str, argv: list[str]) -> None:
         log = open(self.root / "log" / f"{name}.out", "ab")
         self._procs[name] = subprocess.Popen(argv, stdout=log, stderr=subprocess.STDOUT, env=self.env,
-                                             start_new_session=True)
+                                             preexec_fn=_own_session_dying_with_parent)
         log.close()
 
     def start(self, timeout: float = 60) -> SlurmCluster:
