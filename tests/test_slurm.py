@@ -32,8 +32,9 @@ def cluster(tmp_path_factory):
 
 
 def _env(cluster) -> dict:
-    # the jobs inherit the submitting environment (sbatch --export=ALL): this checkout and the cluster's config
-    return {**cluster.env, "PYTHONPATH": str(REPO), "HF_HUB_OFFLINE": "1"}
+    # the jobs inherit the submitting environment (sbatch --export=ALL): this checkout and the cluster's config;
+    # wide output, so that no message or table cell is folded where a test reads it
+    return {**cluster.env, "PYTHONPATH": str(REPO), "HF_HUB_OFFLINE": "1", "COLUMNS": "250"}
 
 
 @pytest.fixture(scope="module")
@@ -55,7 +56,7 @@ def test_a_sweep_runs_as_slurm_jobs_and_reports_the_failed_one(cluster, reach_de
     # 4 jobs: the two NeedlePick ones fail (no NeedlePick demos in demos_root), the two NeedleReach ones train
     result = subprocess.run([*CLI, "train", "-m", *JOB, "seed=0,1", "task=NeedleReach,NeedlePick",
                              *_train_overrides(reach_demos.parent)], cwd=tmp_path,
-                            env={**_env(cluster), "COLUMNS": "250"}, capture_output=True, text=True, timeout=1800)
+                            env=_env(cluster), capture_output=True, text=True, timeout=1800)
     assert result.returncode == 1, result.stderr[-3000:]
     table = result.stderr[result.stderr.index("sweep: 4 job(s)"):]
     assert len(re.findall(r"\bok\b", table)) == 2 and len(re.findall(r"\bfailed\b", table)) == 2, table
