@@ -169,6 +169,20 @@ PartitionName={PARTITION} Nodes={self.node} Default=YES MaxTime=INFINITE State=U
         return subprocess.run(["squeue", "-h", "-o", "%i %T %j"], env=self.env, capture_output=True,
                               text=True).stdout
 
+    def requeue(self, job_id: str, timeout: float = 120) -> None:
+        """``scontrol requeue`` the job, then make it eligible at once: SLURM holds a requeued job back for about
+        two minutes (its BeginTime), which would only slow the test down."""
+        subprocess.run(["scontrol", "requeue", job_id], env=self.env, check=True, capture_output=True)
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            state = subprocess.run(["squeue", "-h", "-j", job_id, "-o", "%T"], env=self.env, capture_output=True,
+                                   text=True).stdout.strip()
+            if state == "PENDING" and subprocess.run(["scontrol", "update", f"JobId={job_id}", "StartTime=now"],
+                                                     env=self.env, capture_output=True).returncode == 0:
+                return
+            time.sleep(0.5)
+        raise RuntimeError(f"local SLURM: job {job_id} did not go back to pending after `scontrol requeue`")
+
     def wait_empty(self, timeout: float = 600) -> None:
         """Until no job is pending or running."""
         self._wait(lambda: not self.squeue().strip(), timeout, "the queue to empty")

@@ -84,7 +84,7 @@ def test_a_requeued_job_resumes_from_its_checkpoint(cluster, reach_demos, tmp_pa
             assert sweep.poll() is None and time.monotonic() < deadline, sweep.communicate()[1][-3000:]
             time.sleep(0.5)
         job = cluster.squeue().split()[0]       # the one job: epochs 0 and 1 done and checkpointed
-        subprocess.run(["scontrol", "requeue", job], env=cluster.env, check=True)
+        cluster.requeue(job)
         _, err = sweep.communicate(timeout=1500)
     finally:
         if sweep.poll() is None:
