@@ -141,7 +141,7 @@ def test_the_study_on_slurm_gives_the_local_numbers(cluster, tmp_path):
     assert "submitted 3 SLURM job(s), one per run" in submitted.stdout
     runs = sorted(p.parent.relative_to(on_slurm / "runs").as_posix() for p in (on_slurm / "runs").rglob("run.json"))
     assert runs == ["expert/seed0", "novice/seed0", "script/seed0"]
-    assert not list((on_slurm / ".work").rglob("checkpoint.pt")) if (on_slurm / ".work").exists() else True
+    assert not any((on_slurm / ".work").rglob("checkpoint.pt"))     # no run left half-trained
     for run in runs:
         record = json.loads((on_slurm / "runs" / run / "run.json").read_text())
         assert record["time"]["batched_members"] == 1 and record["epochs"] == 2
