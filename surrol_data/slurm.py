@@ -24,6 +24,9 @@ ACTIVE = ("PENDING", "CONFIGURING", "RUNNING", "COMPLETING", "REQUEUED", "REQUEU
           "SUSPENDED", "STOPPED", "SIGNALING", "STAGE_OUT", "PREEMPTED", "RESV_DEL_HOLD", "SPECIAL_EXIT")
 
 
+_SQUEUE_TRIES = 6
+
+
 class SlurmError(RuntimeError):
     """No SLURM to submit to, or it refused the jobs (the message says what to do)."""
 
@@ -88,10 +91,15 @@ def queue_states(job_ids: Sequence[str]) -> dict[str, str]:
     if not job_ids:
         return {}
     _check_slurm()
-    out = subprocess.run(["squeue", "-h", "-r", "-u", getpass.getuser(), "-o", "%i|%T"], capture_output=True,
-                         text=True)
-    if out.returncode != 0:
-        raise SlurmError(f"squeue failed: {out.stderr.strip()}")
+    for attempt in range(_SQUEUE_TRIES):   # a busy slurmctld drops a request now and then: ask again
+        out = subprocess.run(["squeue", "-h", "-r", "-u", getpass.getuser(), "-o", "%i|%T"], capture_output=True,
+                             text=True)
+        if out.returncode == 0:
+            break
+        time.sleep(2.0 * (attempt + 1))
+    else:
+        raise SlurmError(f"squeue failed {_SQUEUE_TRIES} times (is slurmctld up? `sinfo` says): "
+                         f"{out.stderr.strip() or f'exit status {out.returncode}'}")
     wanted = set(job_ids)
     states = {}
     for line in out.stdout.splitlines():
