@@ -64,10 +64,14 @@ def _check_slurm() -> None:
 
 def submit_array(fn: Callable, items: Sequence[tuple], folder: Path, name: str, options: SlurmOptions) -> list:
     """Submit ``fn(*item)`` for each item as one job array; the submitit jobs, in item order. Each job's log is
-    ``folder/<array id>_<index>/<array id>_<index>_0_log.out`` (and ``.err``)."""
+    ``folder/<array id>_<index>_0_log.out`` (and ``.err``).
+
+    One folder for all jobs, made before ``sbatch``: with a folder per job (submitit's ``%j``) submitit makes it
+    only after ``sbatch`` returned, and a job that an idle cluster starts at once finds no folder for its log and
+    fails before it runs."""
     _check_slurm()
     submitit = require("submitit")
-    executor = submitit.AutoExecutor(folder=str(Path(folder) / "%j"), cluster="slurm")
+    executor = submitit.AutoExecutor(folder=str(folder), cluster="slurm")
     params = {"name": name, "timeout_min": int(options.time_min), "cpus_per_task": int(options.cpus_per_task),
               "mem_gb": options.mem_gb, "slurm_array_parallelism": int(options.array_parallelism)}
     if options.partition:

@@ -219,7 +219,7 @@ def _print_sweep_report(path: Path, expected: list[str], cluster: bool) -> int:
     if not rows:
         return 0
     seen = {r.get("num") for r in rows}
-    where = ("its SLURM log: <sweep dir>/.submitit/<job id>_<num>/" if cluster else "the sweep's output above")
+    where = ("its SLURM log: <sweep dir>/.submitit/<job id>_<num>_0_log.err" if cluster else "the sweep's output above")
     rows += [{"num": num, "job": job, "status": "failed", "run_dir": "",
               "detail": f"no result: the job was killed or never ran (job #{num}; see {where})"}
              for num, job in enumerate(expected) if num not in seen]

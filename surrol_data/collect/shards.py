@@ -110,5 +110,5 @@ def _locally(items: list[tuple], progress: bool, say) -> None:
 def _on_slurm(items: list[tuple], out: Path, options: SlurmOptions, say) -> None:
     jobs = submit_array(record_shard, items, shards_folder(out) / "slurm",
                         f"collect-{items[0][0]}", options)
-    say(f"submitted {len(jobs)} SLURM job(s), one per shard (logs: {shards_folder(out) / 'slurm'}/<job id>/)")
+    say(f"submitted {len(jobs)} SLURM job(s), one per shard (logs: {shards_folder(out) / 'slurm'}/<job id>_0_log.out)")
     wait_for([j.job_id for j in jobs], say)

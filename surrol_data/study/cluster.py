@@ -6,7 +6,7 @@ batch does; the report is assembled from the finished runs whenever asked (``stu
 
 Each job trains its run as a batch of one in ``OUT/.work/<source>/seed<k>`` (checkpoints: a requeued or
 resubmitted job resumes) and moves it into ``OUT/runs/<source>/seed<k>`` when done. ``OUT/slurm/jobs.jsonl``
-records which job was given which run; ``OUT/slurm/<job id>/`` holds each job's log. Submitting again submits
+records which job was given which run; ``OUT/slurm/<job id>_0_log.out`` (and ``.err``) is each job's log. Submitting again submits
 only the runs that are neither finished nor queued or running, so a failed or cancelled job is re-submitted by
 the same command and no finished run is redone.
 """
@@ -112,7 +112,7 @@ def submit_study(experiment: str, out: str | Path, options: SlurmOptions, *, nat
                                 "stderr": str(j.paths.stderr)}) + "\n")
     say(f"submitted {len(jobs)} SLURM job(s), one per run: "
         f"{', '.join(f'{run_name(*r)} → {j.job_id}' for r, j in zip(selected, jobs))}")
-    say(f"logs: {out / 'slurm'}/<job id>/; when they are done: surrol-data study {experiment} --out {out} --report")
+    say(f"logs: {out / 'slurm'}/<job id>_0_log.out; when they are done: surrol-data study {experiment} --out {out} --report")
     return run_jobs(out, spec)
 
 
