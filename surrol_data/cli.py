@@ -166,6 +166,71 @@ def demo(out: Optional[Path] = typer.Option(None, help="Folder for everything th
         _fail(str(e))
 
 
+class Launcher(str, Enum):
+    local = "local"
+    slurm = "slurm"
+
+
+def _slurm_options(partition, account, time_min, mem_gb, cpus, sbatch):
+    from surrol_data.slurm import SlurmOptions, parse_sbatch_options
+
+    try:
+        return SlurmOptions(partition=partition, account=account, time_min=time_min, mem_gb=mem_gb,
+                            cpus_per_task=cpus, extra=parse_sbatch_options(sbatch))
+    except ValueError as e:
+        _fail(str(e))
+
+
+# The SLURM options of the commands that can fan out over a cluster (study, collect --shards).
+def _partition_option():
+    return typer.Option(None, help="--launcher slurm: the SLURM partition (sinfo lists them; default: the "
+                                   "cluster's default).")
+
+
+def _account_option():
+    return typer.Option(None, help="--launcher slurm: the account to charge (sbatch --account).")
+
+
+def _time_option(default: int):
+    return typer.Option(default, "--time", min=1, help="--launcher slurm: each job's time limit in minutes.")
+
+
+def _mem_option(default: float):
+    return typer.Option(default, "--mem-gb", min=0.1, help="--launcher slurm: each job's memory in GB.")
+
+
+def _cpus_option(default: int):
+    return typer.Option(default, "--cpus", min=1, help="--launcher slurm: CPUs per job.")
+
+
+def _sbatch_option():
+    return typer.Option([], help="--launcher slurm: a further sbatch option KEY=VALUE, e.g. qos=normal "
+                                 "(repeatable).")
+
+
+def _collect_shards(source, task, episodes, out, shards, launcher, seed, append, command, slurm_options,
+                    kwargs) -> None:
+    from surrol_data.collect.shards import collect_script_shards
+    from surrol_data.datasets.reader import DatasetError
+    from surrol_data.extras import MissingExtra
+    from surrol_data.slurm import SlurmError
+
+    if source is not Source.script:
+        _fail("--shards and --launcher slurm record scripted demos: use them with --source script")
+    if shards is None:
+        _fail("--launcher slurm collects in shards: add --shards N (one SLURM job per shard)")
+    if append:
+        _fail("--shards records new shards and merges them into a new dataset: leave out --append (merge the "
+              "result into an existing dataset with `surrol-data merge`)")
+    try:
+        collect_script_shards(task, episodes, out, shards, seed=seed or 0, command=command, say=console.print,
+                              slurm=slurm_options if launcher is Launcher.slurm else None, **kwargs)
+    except (ValueError, FileExistsError, RuntimeError, DatasetError, SlurmError, MissingExtra) as e:
+        _fail(str(e))
+    console.print(f"recorded {episodes} episodes in {shards} shard(s) (disjoint seeds; kept in {out}.shards) and "
+                  f"merged them into {out}")
+
+
 @app.command()
 def collect(source: Source = typer.Option(..., help="Where actions come from: the scripted oracle, a teleoperation "
                                           "device, or a policy that the operator of a device takes over (intervene)."),
@@ -199,6 +264,16 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
                                         "paper's script demos at --max-steps 150)."),
             policy: Optional[str] = typer.Option(None, help="intervene: the policy that acts: a checkpoint (.pt), "
                                                  "lerobot:DIR or 'oracle'."),
+            shards: Optional[int] = typer.Option(None, min=1, help="script: record in N shards at once (disjoint "
+                                                 "seeds; local worker processes, or SLURM jobs with --launcher "
+                                                 "slurm), kept in OUT.shards/, then merged into OUT."),
+            launcher: Launcher = typer.Option(Launcher.local, help="--shards: where the shards run."),
+            partition: Optional[str] = _partition_option(),
+            account: Optional[str] = _account_option(),
+            time_min: int = _time_option(60),
+            mem_gb: float = _mem_option(2.0),
+            cpus: int = _cpus_option(1),
+            sbatch: list[str] = _sbatch_option(),
             old_episodes: Optional[int] = _old_count_option()):
     """Record demonstrations into a LeRobot v3 dataset with per-episode provenance (and the endoscope video)."""
     command = shlex.join(["surrol-data", *sys.argv[1:]])
@@ -207,6 +282,11 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
     if (policy is not None) != (source is Source.intervene):
         _fail("--policy names the policy of --source intervene (and only of it)" if policy is not None else
               "--source intervene needs --policy: a checkpoint (.pt), lerobot:DIR or 'oracle'")
+    if shards is not None or launcher is Launcher.slurm:   # it says these need --source script
+        _collect_shards(source, task, episodes, out, shards, launcher, seed, append, command,
+                        _slurm_options(partition, account, time_min, mem_gb, cpus, sbatch),
+                        dict(max_steps=max_steps, keep_failures=keep_failures, camera_size=size, speed=speed))
+        return
     if source is not Source.script:
         from surrol_data.collect.devices import DeviceError
         from surrol_data.collect.haptic_source import collect_haptic, parse_mapping
@@ -419,6 +499,24 @@ def report(runs: list[Path] = typer.Argument(..., help="Training run folders, or
     console.print(f"wrote {files['markdown']}, {files['html']} and {files['curves']}")
 
 
+def _print_run_jobs(rows) -> None:
+    from rich.table import Table
+
+    from surrol_data.study.spec import run_name
+
+    table = Table(title="SLURM jobs of the study")
+    for col in ("run", "state", "job", "log"):
+        table.add_column(col, overflow="fold")
+    for r in rows:
+        colour = {"finished": "green", "failed": "bold red"}.get(r.state, "yellow")
+        table.add_row(run_name(*r.run), f"[{colour}]{r.state}[/]", r.job_id, r.log if r.state == "failed" else "")
+    console.print(table)
+    failed = [run_name(*r.run) for r in rows if r.state == "failed"]
+    if failed:
+        console.print(f"failed (see the logs): {', '.join(failed)}; the same --launcher slurm command submits them "
+                      "again, resuming from their checkpoints")
+
+
 @app.command()
 def study(experiment: str = typer.Argument(..., help="A study experiment config: table1 or table1_quick."),
           out: Path = typer.Option(..., help="Folder for the runs and the report (e.g. docs/results/table1)."),
@@ -427,7 +525,7 @@ def study(experiment: str = typer.Argument(..., help="A study experiment config:
                                                        "interleaves sources and seeds), then rebuild the report."),
           runs: Optional[str] = typer.Option(None, help="Train these runs, e.g. expert/0,novice/1."),
           report_only: bool = typer.Option(False, "--report", help="Train nothing: rebuild the report from the "
-                                                                   "finished runs."),
+                                                                   "finished runs (and show the SLURM jobs' states)."),
           build_demos: bool = typer.Option(False, help="Build the study's shipped demo sets (datasets/…) and their "
                                                        "manifest first."),
           check_code: bool = typer.Option(False, help="Record this checkout's code identity on this machine in "
@@ -435,25 +533,60 @@ def study(experiment: str = typer.Argument(..., help="A study experiment config:
           natural: bool = typer.Option(False, help="Use the operators' natural pace instead of demo sets matched "
                                                    "to the paper's."),
           override: list[str] = typer.Option([], help="Hydra override for every run, e.g. algo=ddpgbc_warm "
-                                                      "(repeatable).")):
+                                                      "(repeatable)."),
+          launcher: Launcher = typer.Option(Launcher.local, help="local: train the runs here as one batch; slurm: "
+                                            "submit one SLURM job per run (a job array) and return."),
+          wait: bool = typer.Option(False, help="--launcher slurm: wait for the jobs, then write the report."),
+          partition: Optional[str] = _partition_option(),
+          account: Optional[str] = _account_option(),
+          time_min: int = _time_option(1440),
+          mem_gb: float = _mem_option(4.0),
+          cpus: int = _cpus_option(3),
+          sbatch: list[str] = _sbatch_option()):
     """The Table I study, run by run: train pending runs (all, --next N or --runs), then report on the finished."""
     from surrol_data.datasets.reader import DatasetError
     from surrol_data.evaluation.study_report import StudyReportError
+    from surrol_data.slurm import SlurmError
     from surrol_data.study import run_study
+    from surrol_data.study.cluster import run_jobs, submit_study, submitted_jobs, wait_for_runs
+    from surrol_data.study.runs import study_spec
 
     if sum(x is not None and x is not False for x in (next_runs, runs, report_only or None)) > 1:
         _fail("--next, --runs and --report choose what to train: give one of them")
+    slurm = launcher is Launcher.slurm
+    if slurm and (report_only or check_code):
+        _fail("--launcher slurm submits runs; --report and --check-code run here: leave out --launcher slurm")
+    if wait and not slurm:
+        _fail("--wait waits for SLURM jobs: add --launcher slurm")
+    from surrol_data.extras import MissingExtra
+
+    errors = (StudyReportError, DatasetError, ValueError, FileNotFoundError, RuntimeError, SlurmError, MissingExtra)
+    failed = False
     try:
+        if slurm:
+            options = _slurm_options(partition, account, time_min, mem_gb, cpus, sbatch)
+            rows = submit_study(experiment, out, options, natural=natural, overrides=override, runs=runs,
+                                next_runs=next_runs, build_demos=build_demos, say=console.print)
+            if not wait:
+                _print_run_jobs(rows)
+                return
+            rows = wait_for_runs(out, study_spec(experiment, override, natural), say=console.print)
+            _print_run_jobs(rows)
+            failed = any(r.state == "failed" for r in rows)
+        train = not slurm and not report_only and not (check_code and next_runs is None and runs is None)
         files = run_study(experiment, out, natural=natural, overrides=override, next_runs=next_runs, runs=runs,
-                          train=not report_only and not (check_code and next_runs is None and runs is None),
-                          build_demos=build_demos, check_code=check_code,
+                          train=train, build_demos=build_demos and not slurm, check_code=check_code,
                           say=console.print)
-    except (StudyReportError, DatasetError, ValueError, FileNotFoundError, RuntimeError) as e:
+        if report_only and submitted_jobs(out.resolve()):
+            _print_run_jobs(run_jobs(out.resolve(), study_spec(experiment, override, natural)))
+    except errors as e:
         _fail(str(e))
     if files:
         console.print(f"wrote {files['markdown']}, {files['html']} and {files['curves']}")
     else:
         console.print(f"no finished runs in {out / 'runs'} yet: no report written")
+    if slurm and failed:
+        raise typer.Exit(code=1)
 
 
 @app.command("train-bc")

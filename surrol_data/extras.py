@@ -20,6 +20,7 @@ OPTIONAL = {
     "panda3d": ("render", "panda3d"),
     "tensorboard": ("tensorboard", "tensorboard"),
     "hydra_plugins.hydra_submitit_launcher": ("cluster", "hydra-submitit-launcher"),
+    "submitit": ("cluster", "submitit"),
 }
 
 

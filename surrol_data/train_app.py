@@ -95,11 +95,21 @@ def _job_label() -> str:
         return ""
 
 
+def _job_num() -> int | None:
+    from hydra.core.hydra_config import HydraConfig
+
+    try:
+        return int(HydraConfig.get().job.num)
+    except (ValueError, TypeError):
+        return None
+
+
 def _report_job(status: str, detail: str, run_dir: str) -> None:
     path = os.environ.get(SWEEP_REPORT_VAR)
     if not path:
         return
-    line = json.dumps({"job": _job_label(), "status": status, "detail": detail, "run_dir": run_dir})
+    line = json.dumps({"num": _job_num(), "job": _job_label(), "status": status, "detail": detail,
+                       "run_dir": run_dir})
     with open(path, "a") as f:  # one short O_APPEND write per job: parallel workers do not interleave
         f.write(line + "\n")
 
@@ -198,14 +208,22 @@ def resume_command(args: list[str]) -> str:
     return shlex.join(["surrol-data", "train", *kept, "resume=true"])
 
 
-def _print_sweep_report(path: Path) -> int:
-    """A table of every job of the sweep; the number that failed."""
+def _print_sweep_report(path: Path, expected: list[str], cluster: bool) -> int:
+    """A table of every job of the sweep (``expected``: each job's overrides, by job number); the number that
+    failed. Once any job has reported, one that left no line (killed by the OS or the scheduler: out of memory,
+    out of time, cancelled) is a failed row too; if none reported, Hydra's own error (a bad override, ...) says it."""
     from rich.console import Console
     from rich.table import Table
 
     rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.exists() else []
     if not rows:
         return 0
+    seen = {r.get("num") for r in rows}
+    where = ("its SLURM log: <sweep dir>/.submitit/<job id>_<num>_0_log.err" if cluster else "the sweep's output above")
+    rows += [{"num": num, "job": job, "status": "failed", "run_dir": "",
+              "detail": f"no result: the job was killed or never ran (job #{num}; see {where})"}
+             for num, job in enumerate(expected) if num not in seen]
+    rows.sort(key=lambda r: (r.get("num") is None, r.get("num") or 0))
     table = Table(title=f"sweep: {len(rows)} job(s)")
     for col in ("job", "status", "run_dir", "detail"):
         table.add_column(col, overflow="fold")
@@ -274,16 +292,37 @@ def _main(args: list[str], argv: list[str] | None) -> None:
         return
     if argv is not None:
         sys.argv = ["surrol-data train", *argv]
-    with tempfile.TemporaryDirectory(prefix="surrol_sweep_") as tmp:
+    cluster = _cluster_launcher(args)
+    # The jobs append their lines to one file: on a cluster it must be on the file system the compute nodes share
+    # with this one, so it goes in the launch folder (where run_dir is relative to) rather than in /tmp.
+    with tempfile.TemporaryDirectory(prefix=".surrol_sweep_", dir=os.getcwd() if cluster else None) as tmp:
         report = Path(tmp) / "jobs.jsonl"
-        os.environ[SWEEP_REPORT_VAR] = str(report)  # inherited by the launcher's worker processes
+        os.environ[SWEEP_REPORT_VAR] = str(report)  # inherited by the launcher's workers and by sbatch's jobs
         try:
             hydra.main(config_path=str(config_dir()), config_name="config", version_base="1.3")(_run)()
         finally:
             os.environ.pop(SWEEP_REPORT_VAR, None)
-            failed = _print_sweep_report(report)
+            failed = _print_sweep_report(report, _expected_jobs(args), cluster)
     if failed:
         raise SystemExit(1)
+
+
+def _cluster_launcher(args: list[str]) -> bool:
+    """Whether the sweep's jobs run on other machines (a launcher other than the local joblib one)."""
+    launchers = [a.split("=", 1)[1] for a in args if a.lstrip("+").startswith("hydra/launcher=")]
+    return bool(launchers) and launchers[-1] not in ("local", "joblib", "basic")
+
+
+def _expected_jobs(args: list[str]) -> list[str]:
+    """Each job's label (its overrides, as the job reports it) in job-number order; [] unless a sweep (-m)."""
+    if not ({"-m", "--multirun"} & set(args)):
+        return []
+    overrides = [a for a in args if not a.startswith("-")]
+    task = [o for o in overrides if not o.lstrip("+~").startswith(("hydra.", "hydra/"))]
+    try:
+        return [" ".join(job) or "(defaults)" for job in sweep_jobs(task)]
+    except Exception:  # noqa: BLE001  (an override Hydra itself rejects: Hydra has said why already)
+        return []
 
 
 if __name__ == "__main__":

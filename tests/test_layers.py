@@ -7,7 +7,7 @@ and the rules are those of ``docs/architecture.md``:
 ====== ==========================================================
 layer  packages and modules of ``surrol_data``
 ====== ==========================================================
-0      ``surrol_data`` itself (``__init__``), ``extras``
+0      ``surrol_data`` itself (``__init__``), ``extras``, ``slurm``
 1      ``envs``
 2      ``render``, ``datasets`` (neither imports the other)
 3      ``collect``, ``viz`` (viz does not import collect)
@@ -31,7 +31,7 @@ PACKAGE = "surrol_data"
 ROOT = Path(__file__).resolve().parents[1] / PACKAGE
 
 LAYERS = {
-    PACKAGE: 0, "extras": 0,
+    PACKAGE: 0, "extras": 0, "slurm": 0,
     "envs": 1,
     "render": 2, "datasets": 2,
     "collect": 3, "viz": 3,

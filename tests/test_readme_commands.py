@@ -3,8 +3,9 @@ collected and 5 evaluation episodes, training on ``experiment=smoke``, a study o
 folder, each ``bash`` block in order: the README's, then each page of ``DOC_PAGES`` in turn. A command an earlier
 block already ran in the same folder (a docs page repeating the README) is not run again.
 
-Left out: the install lines (``pip install uv``, the test suite itself), the SLURM sweep (no cluster
-here; its composed config is still checked with ``--cfg job``) and ``eval --policy lerobot:DIR`` (it needs a
+Left out: the install lines (``pip install uv``, the test suite itself), the SLURM commands (no cluster
+here: ``tests/test_slurm.py`` starts one and runs them; the sweep's composed config is still checked with
+``--cfg job``) and ``eval --policy lerobot:DIR`` (it needs a
 ``lerobot-train`` run first; ``tests/test_lerobot_train.py`` runs the two in order).
 """
 
@@ -69,7 +70,7 @@ def all_blocks() -> list[list[str]]:
 def adapt(command: str, home: Path) -> list[str] | None:
     """A README or docs command with small sizes and placeholders filled; None if it cannot run here."""
     args = shlex.split(command.replace("~", str(home)))
-    if "hydra/launcher=slurm" in args:
+    if "hydra/launcher=slurm" in args or "slurm" in args:   # tests/test_slurm.py runs these on a local SLURM
         return None
     if any(a.startswith("lerobot:") for a in args):   # needs lerobot-train's output first: tests/test_lerobot_train.py
         return None

@@ -63,3 +63,21 @@ def test_the_resume_command_keeps_the_overrides_and_replaces_resume_and_overwrit
 
     assert resume_command(["-m", "seed=0,1", "run_dir=my runs/x", "resume=false", "overwrite=true"]) == \
         "surrol-data train -m seed=0,1 'run_dir=my runs/x' resume=true"
+
+
+def test_a_sweep_job_that_left_no_result_is_a_failed_row(tmp_path, capsys):
+    """A job killed by the OS or the scheduler (out of memory, out of time, cancelled) writes no line: the sweep's
+    table still lists it, as failed, and counts it."""
+    from surrol_data.train_app import _cluster_launcher, _expected_jobs, _print_sweep_report
+
+    args = ["-m", "hydra/launcher=slurm", "hydra.launcher.partition=cpu", "seed=0,1", "task=NeedleReach"]
+    expected = _expected_jobs(args)
+    assert expected == ["seed=0 task=NeedleReach", "seed=1 task=NeedleReach"] and _cluster_launcher(args)
+    assert not _cluster_launcher(["-m", "seed=0,1"]) and _expected_jobs(["seed=0"]) == []
+    report = tmp_path / "jobs.jsonl"
+    report.write_text(json.dumps({"num": 1, "job": expected[1], "status": "ok", "detail": "final success 1.00",
+                                  "run_dir": "runs/x/seed1"}) + "\n")
+    assert _print_sweep_report(report, expected, cluster=True) == 1
+    table = " ".join(capsys.readouterr().err.split())
+    assert "sweep: 2 job(s)" in table and "killed or never ran" in table and ".submitit" in table
+    assert table.index("seed=0") < table.index("seed=1")          # in job order

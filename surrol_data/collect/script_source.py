@@ -109,17 +109,21 @@ SCRIPT_SPEED_MATCHED = 0.3
 def collect_script(task: str, episodes: int, out: str | Path, seed: int | None = 0, max_steps: int | None = None,
                    keep_failures: bool = False, append: bool = False, max_attempts: int | None = None,
                    progress: bool = True, command: str | None = None,
-                   camera_size: tuple[int, int] | None = None, speed: float = 1.0) -> CollectResult:
+                   camera_size: tuple[int, int] | None = None, speed: float = 1.0,
+                   seed_stride: int = 1) -> CollectResult:
     """Record ``episodes`` oracle episodes of ``task`` into the LeRobot dataset at ``out``.
 
-    Attempt ``i`` uses seed ``seed + i`` (``seed=None``: 0, or with ``append`` the seed after the dataset's
-    last scripted one, see :func:`first_seed`); an attempt is kept when it succeeded at some step (the original
+    Attempt ``i`` uses seed ``seed + i * seed_stride`` (``seed=None``: 0, or with ``append`` the seed after the
+    dataset's last scripted one, see :func:`first_seed`; a stride of N with first seeds 0..N-1 gives N collections
+    disjoint seeds, :mod:`surrol_data.collect.shards`); an attempt is kept when it succeeded at some step (the original
     generator's rule), or always with ``keep_failures``. Gives up after ``max_attempts`` (default 3×).
     ``camera_size`` = (width, height) also records the endoscope view as video.
     ``speed`` < 1 runs the oracle at that fraction of its pace (:class:`PacedOracle`; recorded in provenance).
     """
     if episodes <= 0:
         raise ValueError(f"the number of episodes must be positive, got {episodes}")
+    if seed_stride < 1:
+        raise ValueError(f"the seed stride must be at least 1, got {seed_stride}")
     seed = first_seed(out, append, seed, "script")
     import surrol_data.envs  # noqa: F401  (registers the ids)
 
@@ -138,7 +142,7 @@ def collect_script(task: str, episodes: int, out: str | Path, seed: int | None =
     try:
         with recorder:
             while result.kept < episodes and result.attempts < max_attempts:
-                s = seed + result.attempts
+                s = seed + result.attempts * seed_stride
                 t0 = time.perf_counter()
                 traj = rollout(env, policy, s)
                 result.attempts += 1

@@ -10,7 +10,8 @@ the study needs besides (:class:`~surrol_data.study.spec.StudySpec`). Its parts:
 * :mod:`~surrol_data.study.spec`: the spec and the fixed order of the runs (seeds outermost);
 * :mod:`~surrol_data.study.demo_sets`: the demo sets, shipped under ``datasets/`` with their hashes;
 * :mod:`~surrol_data.study.identity`: the code identity each run records;
-* :mod:`~surrol_data.study.runs`: training the selected runs, their final folders, the report.
+* :mod:`~surrol_data.study.runs`: training the selected runs, their final folders, the report;
+* :mod:`~surrol_data.study.cluster`: the same runs as SLURM jobs, one per run (``--launcher slurm``).
 """
 
 from surrol_data.study.demo_sets import build_demo_sets, demo_quality, demo_quality_markdown

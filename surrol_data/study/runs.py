@@ -107,15 +107,17 @@ def _last_epoch(work: Path) -> int | None:
     return int(rows[-1]["epoch"]) if rows else None
 
 
-def _start_batch(out: Path, names: list[str]) -> None:
+def _start_batch(out: Path, names: list[str], shared: bool = True) -> None:
     """Before training ``names`` as one batch. A kill leaves a batch's checkpoints: the same batch again resumes
     them. A batch of other runs resumes those of its runs that all have checkpoints (every member's checkpoint is
     a single run's, so an ensemble can resume a subset of an earlier one: e.g. a batch split so that some of its
     runs finish sooner); otherwise its runs start afresh. Each run's ``batches.json`` records from which epoch it
-    trained in a batch of how many runs (its CPU time is its share of each batch's)."""
+    trained in a batch of how many runs (its CPU time is its share of each batch's). ``shared=False``: a run
+    trained on its own beside others (a cluster job), which neither reads nor writes the one ``.work/batch.json``
+    that a local batch keeps."""
     work = out / ".work"
     record = work / "batch.json"
-    before = json.loads(record.read_text()) if record.is_file() else []
+    before = json.loads(record.read_text()) if shared and record.is_file() else []
     folders = [work_folder(out, source, int(seed)) for source, seed in (name.split("/") for name in names)]
     last = {folder: _last_epoch(folder) for folder in folders}
     resumable = before == names or all(epoch is not None for epoch in last.values())
@@ -132,8 +134,8 @@ def _start_batch(out: Path, names: list[str]) -> None:
             history.append({"from_epoch": start, "members": len(names)})
         folder.mkdir(parents=True, exist_ok=True)
         history_path.write_text(json.dumps(history))
-    work.mkdir(parents=True, exist_ok=True)
-    record.write_text(json.dumps(names))
+    if shared:
+        record.write_text(json.dumps(names))
 
 
 def _end_batch(out: Path) -> None:
@@ -204,13 +206,7 @@ def run_study(experiment: str, out: str | Path, *, natural: bool = False, overri
     """Train the selected runs of the study (``runs`` by name, else the next ``next_runs`` pending, else all
     pending; none with ``train=False``), then rebuild the report from every finished run. Returns the report's
     files (see :func:`surrol_data.evaluation.study_report.write_study_report`)."""
-    from surrol_data.algos.train_batched import train_batched
-    from surrol_data.evaluation.study_report import write_study_report
-    from surrol_data.train_app import to_train_config
-
-    spec = load_spec(experiment, overrides)
-    if natural:
-        spec = replace(spec, matched=False)
+    spec = study_spec(experiment, overrides, natural)
     out = Path(out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     sets, hashes = prepare_demo_sets(spec, out, build=build_demos, progress=progress)
@@ -218,42 +214,91 @@ def run_study(experiment: str, out: str | Path, *, natural: bool = False, overri
     (out / "demos.md").write_text(f"# Demonstrations\n\n{demo_md}")
 
     done = finished_runs(out, spec)
-    if not train:
-        selected = []
-    elif runs:
+    selected = select_runs(out, spec, runs=runs, next_runs=next_runs) if train else []
+    if selected or check_code:
+        cfgs, train_cfgs, identity = _checked_configs(spec, experiment, out, sets, selected or spec.run_order()[:1],
+                                                      progress)
+        if check_code:   # recorded only once it passed: the ledger links code that means the same
+            append_check(out / CHECKS_FILE, identity)
+            say(f"this checkout means the same code as the {len(done)} finished run(s); recorded its identity in "
+                f"{out / CHECKS_FILE}: {identity.short()}")
+    if selected:
+        names = [run_name(*r) for r in selected]
+        say(f"training {len(selected)} run(s) of {experiment} as one batch: {', '.join(names)} "
+            f"({len(done)} of {len(spec.run_order())} finished before)")
+        folders = _train_batch(out, spec, selected, cfgs, train_cfgs, identity, hashes, progress)
+        for run, folder in zip(selected, folders):
+            say(f"finished {run_name(*run)}: {folder}")
+        _end_batch(out)
+    return study_report(experiment, out, spec, demo_md, natural)
+
+
+def study_spec(experiment: str, overrides: Sequence[str] = (), natural: bool = False) -> StudySpec:
+    spec = load_spec(experiment, overrides)
+    return replace(spec, matched=False) if natural else spec
+
+
+def select_runs(out: Path, spec: StudySpec, *, runs: str | None = None, next_runs: int | None = None) -> list:
+    """The runs to train: ``runs`` by name (none of them finished), else the next ``next_runs`` pending, else all
+    pending."""
+    done = finished_runs(out, spec)
+    if runs:
         selected = parse_runs(runs, spec)
         already = [run_name(*r) for r in selected if r in done]
         if already:
             raise ValueError(f"run(s) {', '.join(already)} are finished already (in {out / 'runs'}); to redo one, "
                              "delete its folder first")
-    else:
-        pending = [r for r in spec.run_order() if r not in done]
-        selected = pending if next_runs is None else pending[:next_runs]
+        return selected
+    pending = [r for r in spec.run_order() if r not in done]
+    return pending if next_runs is None else pending[:next_runs]
 
-    if selected or check_code:
-        cfgs = _compose(spec, experiment, out, sets, selected or spec.run_order()[:1], progress)
-        train_cfgs = [to_train_config(c) for c in cfgs]
-        identity = current_identity(train_cfgs[0])
-        checks_path = out / CHECKS_FILE
-        check_same_code({**committed_identities(out, spec), "this checkout": identity}, read_checks(checks_path))
-        if check_code:   # recorded only once it passed: the ledger links code that means the same
-            append_check(checks_path, identity)
-            say(f"this checkout means the same code as the {len(done)} finished run(s); recorded its identity in "
-                f"{checks_path}: {identity.short()}")
-    if selected:
-        names = [run_name(*r) for r in selected]
-        say(f"training {len(selected)} run(s) of {experiment} as one batch: {', '.join(names)} "
-            f"({len(done)} of {len(spec.run_order())} finished before)")
-        _start_batch(out, names)
-        started = time.time()
-        schedule = train_cfgs[0].schedule
-        train_batched(train_cfgs, overlap=bool(cfgs[0].batched_overlap), n_workers=int(schedule.n_envs),
-                      progress=progress, episode_epochs=tuple(spec.report_epochs))
-        for (source, seed), cfg, composed in zip(selected, train_cfgs, cfgs):
-            folder = _finish_run(out, spec, source, seed, Path(cfg.run_dir), composed, identity, hashes, started,
-                                 len(selected))
-            say(f"finished {run_name(source, seed)}: {folder}")
-        _end_batch(out)
+
+def _checked_configs(spec: StudySpec, experiment: str, out: Path, sets: dict[str, Path], runs, progress: bool):
+    """The runs' composed and training configs and this checkout's code identity, checked against the finished
+    runs' and the recorded checks (:func:`check_same_code`)."""
+    from surrol_data.train_app import to_train_config
+
+    cfgs = _compose(spec, experiment, out, sets, runs, progress)
+    train_cfgs = [to_train_config(c) for c in cfgs]
+    identity = current_identity(train_cfgs[0])
+    check_same_code({**committed_identities(out, spec), "this checkout": identity}, read_checks(out / CHECKS_FILE))
+    return cfgs, train_cfgs, identity
+
+
+def _train_batch(out: Path, spec: StudySpec, selected, cfgs, train_cfgs, identity, hashes, progress: bool,
+                 shared: bool = True) -> list[Path]:
+    """Train ``selected`` as one batched ensemble and move each into its run folder (see :func:`_start_batch`)."""
+    from surrol_data.algos.train_batched import train_batched
+
+    _start_batch(out, [run_name(*r) for r in selected], shared=shared)
+    started = time.time()
+    schedule = train_cfgs[0].schedule
+    train_batched(train_cfgs, overlap=bool(cfgs[0].batched_overlap), n_workers=int(schedule.n_envs),
+                  progress=progress, episode_epochs=tuple(spec.report_epochs))
+    return [_finish_run(out, spec, source, seed, Path(cfg.run_dir), composed, identity, hashes, started,
+                        len(selected))
+            for (source, seed), cfg, composed in zip(selected, train_cfgs, cfgs)]
+
+
+def train_one_run(experiment: str, out: str | Path, source: str, seed: int, *, natural: bool = False,
+                  overrides: Sequence[str] = ()) -> Path:
+    """One run of the study trained on its own, beside others (a cluster job of ``study --launcher slurm``): the
+    same configs, code check, training (a batch of one) and run folder as a local batch gives its members. A run
+    with checkpoints resumes (a requeued or resubmitted job); a finished one is left as it is."""
+    spec = study_spec(experiment, overrides, natural)
+    out = Path(out).resolve()
+    final = run_folder(out, source, seed)
+    if (final / RUN_RECORD).is_file():
+        return final
+    sets, hashes = prepare_demo_sets(spec, out, build=False, progress=False)
+    cfgs, train_cfgs, identity = _checked_configs(spec, experiment, out, sets, [(source, seed)], False)
+    return _train_batch(out, spec, [(source, seed)], cfgs, train_cfgs, identity, hashes, False, shared=False)[0]
+
+
+def study_report(experiment: str, out: Path, spec: StudySpec, demo_md: str, natural: bool = False) -> dict:
+    """The report from every finished run (nothing when none is)."""
+    from surrol_data.evaluation.study_report import write_study_report
+
     if not finished_runs(out, spec):
         return {}
     return write_study_report([out / "runs"], out, epochs=list(spec.report_epochs), demo_table_markdown=demo_md,
