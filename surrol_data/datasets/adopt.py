@@ -37,7 +37,6 @@ from surrol_data.datasets.reader import (
     parquet_files,
 )
 from surrol_data.datasets.schema import (
-    FPS,
     PROVENANCE_PREFIX,
     PROVENANCE_SEAL,
     SIDECAR_PATH,
@@ -133,7 +132,7 @@ def _match_episodes(edited: Path, features: dict, original: DatasetReader) -> di
 
 
 def _restore_episode_columns(edited: Path, source: Path, info: dict, matches: dict[int, int]) -> None:
-    from surrol_data.datasets.video import segment_digest
+    from surrol_data.datasets.seals import segment_seal
 
     tables = [pq.read_table(p) for p in parquet_files(source, EPISODES_DIR)]
     theirs = pa.concat_tables(tables, promote_options="default").sort_by("episode_index")
@@ -148,9 +147,7 @@ def _restore_episode_columns(edited: Path, source: Path, info: dict, matches: di
             values = theirs.column(column).take(pa.array(rows, pa.int64()))
             table = table.append_column(theirs.schema.field(column), values)
         for key in video_keys:
-            seals = [segment_digest(edited / info["video_path"].format(video_key=key, chunk_index=r[f"videos/{key}/chunk_index"],
-                                                                       file_index=r[f"videos/{key}/file_index"]),
-                                    r[f"videos/{key}/from_timestamp"], r[f"videos/{key}/to_timestamp"], FPS)
+            seals = [segment_seal(edited, info["video_path"], key, r)
                      for r in table.select([c for c in table.column_names if c.startswith(f"videos/{key}/")]).to_pylist()]
             table = table.append_column(video_seal_column(key), pa.array(seals, pa.string()))
         tmp = path.with_name(path.name + ".tmp")

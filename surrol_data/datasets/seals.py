@@ -9,6 +9,7 @@ metadata (task, seed, operator, skill, device) must say what the episode's prove
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 
 import pyarrow as pa
@@ -24,6 +25,24 @@ from surrol_data.datasets.schema import (
 
 # Trace metadata key -> the provenance column it must equal (collect.haptic_source writes both).
 TRACE_FIELDS = ("task", "env_id", "seed", "operator_id", "skill", "operator_simulated", "operator_params")
+
+
+def video_segment(video_path: str, key: str, row: Mapping) -> tuple[str, float, float] | None:
+    """(file relative to the dataset, from, to seconds) of one episode's segment of video ``key``: ``row`` holds its
+    ``meta/episodes`` values, ``video_path`` is info.json's template. None when the row does not place it."""
+    chunk, file, start, end = (row.get(f"videos/{key}/{c}")
+                               for c in ("chunk_index", "file_index", "from_timestamp", "to_timestamp"))
+    if chunk is None or file is None or start is None or end is None:
+        return None
+    return video_path.format(video_key=key, chunk_index=chunk, file_index=file), float(start), float(end)
+
+
+def segment_seal(root: Path, video_path: str, key: str, row: Mapping) -> str:
+    """The seal of one episode's segment of video ``key`` (see :func:`video_segment`): the digest of its packets."""
+    from surrol_data.datasets.video import segment_digest
+
+    rel, start, end = video_segment(video_path, key, row)
+    return segment_digest(Path(root) / rel, start, end, FPS)
 
 
 def provenance_mismatches(meta: pa.Table, sealed: bool) -> tuple[list[int], list[int]]:
@@ -60,20 +79,19 @@ def video_mismatches(root: Path, info: dict, meta: pa.Table, sealed: bool) -> di
         cols = [f"videos/{key}/{c}" for c in ("chunk_index", "file_index", "from_timestamp", "to_timestamp")]
         if any(c not in meta.column_names for c in cols):
             continue
-        rows = zip(meta.column("episode_index").to_pylist(), *(meta.column(c).to_pylist() for c in cols), seals,
-                   strict=True)
-        for ep, chunk, file, start, end, seal in rows:
-            if chunk is None or file is None or start is None or end is None:
+        for row, seal in zip(meta.select(["episode_index", *cols]).to_pylist(), seals, strict=True):
+            segment = video_segment(info["video_path"], key, row)
+            if segment is None:
                 continue
-            rel = info["video_path"].format(video_key=key, chunk_index=chunk, file_index=file)
+            rel, start, end = segment
             bad, missing = found.setdefault(rel, ([], []))
             if seal is None:
                 if sealed:
-                    missing.append(int(ep))
+                    missing.append(int(row["episode_index"]))
                 continue
             try:
-                if segment_digest(root / rel, float(start), float(end), FPS) != seal:
-                    bad.append(int(ep))
+                if segment_digest(root / rel, start, end, FPS) != seal:
+                    bad.append(int(row["episode_index"]))
             except DatasetError:
                 continue
     return {rel: v for rel, v in found.items() if v[0] or v[1]}

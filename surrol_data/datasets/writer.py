@@ -327,16 +327,12 @@ class DatasetWriter:
                                "the LeRobotDataset directly")
         columns = dict(self._pending_columns)
         if self._sealed:
-            from surrol_data.datasets.video import segment_digest
+            from surrol_data.datasets.seals import segment_seal
 
             for cam in self.dims["cameras"]:
                 key = f"observation.images.{cam}"
-                rel = self._ds.meta.video_path.format(video_key=key,
-                                                      chunk_index=episode_metadata[f"videos/{key}/chunk_index"],
-                                                      file_index=episode_metadata[f"videos/{key}/file_index"])
-                columns[video_seal_column(key)] = segment_digest(
-                    self.root / rel, episode_metadata[f"videos/{key}/from_timestamp"],
-                    episode_metadata[f"videos/{key}/to_timestamp"], FPS)
+                columns[video_seal_column(key)] = segment_seal(self.root, self._ds.meta.video_path, key,
+                                                               episode_metadata)
         return columns
 
     # ------------------------------------------------------------------ signals
