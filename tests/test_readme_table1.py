@@ -32,6 +32,12 @@ def _mean_std(est, scale: float = 1.0) -> str:
     return f"{est.mean * scale:.1f} ± {est.std * scale:.1f}"
 
 
+def _listed(values) -> str:
+    """1, 2 and 3: the seeds' figures as a sentence lists them."""
+    words = [str(v) for v in values]
+    return words[0] if len(words) == 1 else f"{', '.join(words[:-1])} and {words[-1]}"
+
+
 def test_the_run_count_and_the_success_table(section, runs):
     assert f"**{len(runs)} of the 12 matched runs are committed" in section
     est = table1_estimates(runs, [50, 100])
@@ -52,6 +58,6 @@ def test_steps_path_first_epoch_at_90_and_recovery(section, runs):
     for source in SOURCES:
         firsts = [next(row["epoch"] for row in r.rows if row.get("success_rate", 0) >= 0.9)
                   for r in sorted(runs, key=lambda r: r.seed) if r.source == source]
-        assert f"{' and '.join(map(str, firsts))} for the {source}-trained" in flat, source
+        assert f"{_listed(firsts)} for the {source}-trained" in flat, source
     for row in recovery_rows(runs, 50):
         assert f"{row['source']} {row['recovered']} of {row['first_failed']}" in flat, row

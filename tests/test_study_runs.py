@@ -123,6 +123,7 @@ def test_a_partial_study_commits_run_folders_and_a_report_marked_partial(partial
     assert "(partial)" in report and "stands on 2 of the study's 6 runs" in report
     assert "Missing: expert/0, script/1, novice/1, expert/1" in report
     assert "## Recovery after a failed first grasp" in report
+    assert "A jaw closure is an open→close transition of the commanded jaw" in report   # what the counts mean
     # the report names the command that rebuilds it, not the training command that last wrote it
     assert f"Report command: `surrol-data study table1_quick --out {out} --report`" in report
 
@@ -210,3 +211,19 @@ def test_a_batch_split_resumes_its_runs_and_shares_their_cpu_by_batch_size(tmp_p
     _start_batch(tmp_path, ["expert/0", "script/1"])
     assert not (work / "expert" / "seed0" / "checkpoint.pt").exists()
     assert json.loads((work / "expert" / "seed0" / "batches.json").read_text()) == [{"from_epoch": 0, "members": 2}]
+
+
+def test_the_rebuild_command_names_the_report_relative_to_its_repository(tmp_path, monkeypatch):
+    """A batch trained from another worktree (or a check run from anywhere) still records the command as it reads
+    in the repository that holds the report, not this machine's absolute path."""
+    from surrol_data.study.runs import _rebuild_command
+
+    repo = tmp_path / "repo"
+    (repo / ".git").mkdir(parents=True)
+    elsewhere = tmp_path / "worktree"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    assert _rebuild_command("table1", repo / "docs" / "results" / "table1", False) == \
+        "surrol-data study table1 --out docs/results/table1 --report"
+    assert _rebuild_command("table1", repo / "docs" / "results" / "table1_natural", True) == \
+        "surrol-data study table1 --out docs/results/table1_natural --natural --report"

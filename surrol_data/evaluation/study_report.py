@@ -193,6 +193,13 @@ def recovery_rows(runs: Sequence[Run], epoch: int) -> list[dict]:
     return rows
 
 
+# Stated in the report because it decides what the recovery row of a jittery policy means: the count follows the
+# commanded jaw, the same for every run, so a policy whose command flickers records "grasps" it never aimed.
+RECOVERY_DEFINITION = ("A jaw closure is an open→close transition of the commanded jaw (command < 0); a grasp failed "
+                       "when the object was never held while the jaw stayed closed. A policy whose jaw command "
+                       "flickers on the way to the object records failed grasps it never aimed, so its recovery rate "
+                       "measures success despite the flicker rather than retries; the last column (failed grasps per "
+                       "episode; a clean retry is 1) tells the two apart.")
 RECOVERY_COLUMNS = (Column("source", "Source"), Column("seeds", "Seeds"), Column("episodes", "Episodes"),
                     Column("closed_jaw", "Closed the jaw"), Column("first_failed", "First grasp failed"),
                     Column("recovered", "…then succeeded"), Column("rate", "Recovery rate"),
@@ -364,7 +371,8 @@ def write_study_report(run_paths: Sequence[str | Path], out: str | Path, *, epoc
         sections += [f"\n## Recovery after a failed first grasp (epoch {at[0]})\n",
                      "The paper saw policies trained on human demos retry after a failed grasp, where script-trained "
                      "ones did not. Of the evaluation episodes whose first jaw closure held nothing, how many still "
-                     "ended in success, pooled over seeds:\n\n" + metrics_table_markdown(recovery, RECOVERY_COLUMNS)]
+                     "ended in success, pooled over seeds:\n\n" + metrics_table_markdown(recovery, RECOVERY_COLUMNS)
+                     + "\n\n" + RECOVERY_DEFINITION]
     if demo_table_markdown:
         sections += ["\n## Demonstrations\n", demo_table_markdown]
     if notes:

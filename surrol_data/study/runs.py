@@ -310,11 +310,14 @@ def study_report(experiment: str, out: Path, spec: StudySpec, demo_md: str, natu
 
 def _rebuild_command(experiment: str, out: Path, natural: bool) -> str:
     """The command that rebuilds this report from the committed runs. Not the command that happened to run last
-    (a training batch or a code check would name its own options and this machine's absolute paths)."""
+    (a training batch or a code check would name its own options and this machine's absolute paths). The path is
+    relative to the repository that holds the report (a batch may run from another worktree)."""
+    out = Path(out).resolve()
+    root = next((p for p in out.parents if (p / ".git").exists()), Path.cwd().resolve())
     try:
-        shown = Path(out).resolve().relative_to(Path.cwd().resolve())
+        shown = out.relative_to(root)
     except ValueError:
-        shown = Path(out)
+        shown = out
     return shlex.join(["surrol-data", "study", experiment, "--out", str(shown), *(["--natural"] if natural else []),
                        "--report"])
 
