@@ -589,6 +589,29 @@ def study(experiment: str = typer.Argument(..., help="A study experiment config:
         raise typer.Exit(code=1)
 
 
+@app.command()
+def interventions(out: Path = typer.Option(..., help="Folder for the datasets, policies and the report (e.g. "
+                                           "docs/results/interventions)."),
+                  experiment: str = typer.Option("interventions", help="The experiment config (its "
+                                                 "`interventions:` block)."),
+                  override: list[str] = typer.Option([], help="Hydra override, e.g. "
+                                                     "experiment.interventions.seeds=[0,1,2] (repeatable)."),
+                  report_only: bool = typer.Option(False, "--report", help="Run nothing: rebuild the report.")):
+    """Demos or interventions: success against frames of human effort, as whole demos or as takeovers (HG-DAgger).
+    Continues an interrupted run in OUT."""
+    from surrol_data.datasets.reader import DatasetError
+    from surrol_data.study.interventions import run_interventions
+
+    try:
+        files = run_interventions(out, experiment, override, train=not report_only, say=console.print)
+    except (ValueError, FileNotFoundError, DatasetError) as e:
+        _fail(str(e))
+    if files:
+        console.print(f"wrote {files['markdown']}, {files['html']} and {files['figure']}")
+    else:
+        console.print(f"no results in {out} yet: no report written")
+
+
 @app.command("train-bc")
 def train_bc_cmd(dataset: Path = typer.Argument(..., help="Dataset folder with demos."),
                  out: Path = typer.Option(..., help="Checkpoint file to write (.pt)."),
@@ -596,7 +619,10 @@ def train_bc_cmd(dataset: Path = typer.Argument(..., help="Dataset folder with d
                  steps_per_epoch: int = typer.Option(100, min=1),
                  seed: int = typer.Option(0),
                  skill: Optional[str] = typer.Option(None, help="Only episodes of this skill (expert, novice, scripted)."),
-                 successful_only: bool = typer.Option(True, help="Only successful episodes.")):
+                 successful_only: bool = typer.Option(True, help="Only successful episodes."),
+                 frames: str = typer.Option("all", help="Which frames: all; human (whole demos and the takeover "
+                                            "segments of intervention sessions: HG-DAgger); intervention (the "
+                                            "takeover segments only).")):
     """Train a behaviour-cloning policy from a dataset's demos (selected by provenance)."""
     from surrol_data.algos.bc import BCConfig, demo_arrays, train_bc
     from surrol_data.datasets.reader import DatasetError, DatasetReader
@@ -616,7 +642,15 @@ def train_bc_cmd(dataset: Path = typer.Argument(..., help="Dataset folder with d
     episodes = reader.select(where or None)
     if not episodes:
         _fail(f"no episodes of {dataset} match {where}; see `surrol-data info {dataset}`")
-    obs, goal, action, episode = demo_arrays(reader.trajectories(episodes))
+    from surrol_data.algos.demos import FRAME_SELECTIONS, select_frames
+
+    if frames not in FRAME_SELECTIONS:
+        _fail(f"--frames must be one of {', '.join(FRAME_SELECTIONS)}, got {frames!r}")
+    trajectories, _ = select_frames(reader.trajectories(episodes), episodes, frames)
+    if not trajectories:
+        _fail(f"--frames {frames}: the {len(episodes)} selected episodes of {dataset} hold no takeover frames; "
+              "record some with `surrol-data collect --source intervene ... --append`")
+    obs, goal, action, episode = demo_arrays(trajectories)
     policy = train_bc(obs, goal, action, BCConfig(epochs=epochs, steps_per_epoch=steps_per_epoch, seed=seed),
                       episode_index=episode)
     console.print(f"trained on {len(episodes)} episodes ({len(obs)} samples); saved {policy.save(out)}")

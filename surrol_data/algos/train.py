@@ -375,7 +375,12 @@ def _write_json(path: Path, data: dict) -> None:
 
 
 def _config_json(cfg: TrainConfig) -> dict:
-    return json.loads(json.dumps(asdict(cfg), default=str))
+    config = json.loads(json.dumps(asdict(cfg), default=str))
+    # demos.frames came after runs were recorded: at its default (every frame) it stays out, so the record, the
+    # resume check and the study's configs of those runs read as they always did.
+    if config["demos"].get("frames") == "all":
+        del config["demos"]["frames"]
+    return config
 
 
 def _save_checkpoint(path: Path, cfg: TrainConfig, learner, replay: EpisodeReplay, demo_buffer: EpisodeReplay | None,

@@ -194,6 +194,15 @@ def parse_mapping(overrides: Sequence[str], base: MappingSettings | None = None)
     return mapping_from_dict(values)
 
 
+def human_horizon(task: str) -> int:
+    """The horizon of a person's (or a supervised policy's) episode of ``task``, as a session without
+    ``max_steps`` uses."""
+    import surrol_data.envs  # noqa: F401  (registers the ids)
+
+    eid = make_env_id(task)
+    return _human_horizon(eid, gym.spec(eid).max_episode_steps)
+
+
 def _human_horizon(eid: str, registered: int) -> int:
     """A person's horizon: HUMAN_HORIZON_FACTOR × the registered one (or the task's HUMAN_PACE_STEPS) in time, not
     steps (an ECM task's 0.1 s steps get twice as many), and twice that where two hands take turns (one waits while

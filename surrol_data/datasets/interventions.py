@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 
 from surrol_data.datasets.schema import FPS, INTERVENTION_ARMS
-from surrol_data.datasets.trajectory import INTERVENTION
+from surrol_data.datasets.trajectory import INTERVENTION, Trajectory
 
 
 @dataclass(frozen=True)
@@ -80,3 +80,26 @@ def operator_interventions(episodes: pd.DataFrame, by: list[str]) -> list[dict]:
                                                    / max(int(rows["frames"].sum()), 1)),
                        "time_to_takeover_s": float(first.mean()) if len(first) else math.nan})
     return groups
+
+
+def takeover_spans(intervention: np.ndarray) -> list[tuple[int, int]]:
+    """The ``[start, end)`` step ranges in which the operator drove at least one arm (``intervention``: (T,) or
+    (T, n_arms) bool), in order: the takeover segments that HG-DAgger adds to the imitation data."""
+    any_arm = np.asarray(intervention, bool).reshape(len(intervention), -1).any(axis=1)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], any_arm.astype(np.int8), [0]])))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+
+
+def trajectory_span(traj: Trajectory, start: int, end: int) -> Trajectory:
+    """Steps ``[start, end)`` of ``traj`` as a trajectory of their own: the observations before each of those
+    actions and the one after the last (so a segment is a short episode, with its own HER goals)."""
+    if not 0 <= start < end <= len(traj):
+        raise ValueError(f"span [{start}, {end}) is not within the trajectory's {len(traj)} steps")
+    steps, states = slice(start, end), slice(start, end + 1)
+    return Trajectory(
+        observation=traj.observation[states], achieved_goal=traj.achieved_goal[states],
+        desired_goal=traj.desired_goal[states], action=traj.action[steps], reward=traj.reward[steps],
+        success=traj.success[steps], terminated=traj.terminated[steps], tip_position=traj.tip_position[states],
+        jaw_angle=traj.jaw_angle[states], flags={k: v[steps] for k, v in traj.flags.items()},
+        images={k: v[states] for k, v in traj.images.items()},
+        policy_action=None if traj.policy_action is None else traj.policy_action[steps])

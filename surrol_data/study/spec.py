@@ -69,21 +69,25 @@ def parse_runs(text: str, spec: StudySpec) -> list[tuple[str, int]]:
 
 def load_spec(experiment: str, overrides: Sequence[str] = ()) -> StudySpec:
     """The :class:`StudySpec` of ``configs/experiment/<experiment>.yaml`` (composed with ``overrides``)."""
+    values = experiment_block(experiment, "study", overrides, "a study experiment such as table1 or table1_quick")
+    for key in ("sources", "seeds", "report_epochs", "run_overrides"):
+        if key in values:
+            values[key] = tuple(values[key])
+    return StudySpec(experiment=experiment, overrides=tuple(overrides), **values)
+
+
+def experiment_block(experiment: str, block: str, overrides: Sequence[str] = (), example: str = "") -> dict:
+    """The ``block:`` of ``configs/experiment/<experiment>.yaml`` (composed with ``overrides``) as a plain dict."""
     from hydra import compose, initialize_config_dir
 
     from surrol_data.train_app import config_dir
 
     with initialize_config_dir(config_dir=str(config_dir()), version_base="1.3"):
         cfg = compose("config", overrides=[f"experiment={experiment}", *overrides])
-    study = cfg.experiment.get("study")
-    if study is None:
-        raise ValueError(f"experiment={experiment} has no `study:` block; use a study experiment such as table1 "
-                         "or table1_quick (configs/experiment/)")
-    values = OmegaConf.to_container(study, resolve=True)
-    for key in ("sources", "seeds", "report_epochs", "run_overrides"):
-        if key in values:
-            values[key] = tuple(values[key])
-    return StudySpec(experiment=experiment, overrides=tuple(overrides), **values)
+    values = cfg.experiment.get(block)
+    if values is None:
+        raise ValueError(f"experiment={experiment} has no `{block}:` block; use {example} (configs/experiment/)")
+    return OmegaConf.to_container(values, resolve=True)
 
 
 def operator_ids(skill: str, operators: int) -> list[str]:
