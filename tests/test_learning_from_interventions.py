@@ -163,3 +163,38 @@ def test_ddpg_bc_her_fills_its_demo_buffer_with_takeover_segments_and_resumes(ex
     with pytest.raises(SystemExit):
         main([*[a for a in args if not a.startswith("demos.frames")], "demos.frames=human", "resume=true"])
     assert "another configuration" in capsys.readouterr().err
+
+
+def test_exports_carry_who_acted_and_the_policy_proposal(experiment, tmp_path, monkeypatch):
+    """robomimic HDF5 and Minari round trips of an intervention session, read back by h5py and minari themselves;
+    a dataset of whole demos exports without the columns."""
+    h5py = pytest.importorskip("h5py", reason="robomimic export needs h5py")
+    minari = pytest.importorskip("minari", reason="Minari export needs minari")
+    from surrol_data.datasets.export_minari import export_minari
+    from surrol_data.datasets.export_robomimic import export_robomimic
+
+    out, _, _ = experiment
+    session, demos = out / "work" / TASK / "seed0" / "round1", out / "work" / TASK / "seed0" / "demos"
+    trajs = DatasetReader(session).trajectories()
+    assert any(t.flags[INTERVENTION].any() for t in trajs)
+
+    path = export_robomimic(session, tmp_path / "hil.hdf5", progress=False)
+    with h5py.File(path, "r") as f:
+        for i, traj in enumerate(trajs):
+            demo = f[f"data/demo_{i}"]
+            assert np.array_equal(demo["is_intervention"][()], traj.flags[INTERVENTION].any(axis=1).astype(np.float32))
+            assert np.array_equal(demo["intervention_arms"][()].astype(bool), traj.flags[INTERVENTION])
+            assert np.array_equal(demo["policy_actions"][()], traj.policy_action)
+            assert np.array_equal(demo["actions"][()], traj.action)
+    with h5py.File(export_robomimic(demos, tmp_path / "demos.hdf5", progress=False), "r") as f:
+        assert "is_intervention" not in f["data/demo_0"] and "policy_actions" not in f["data/demo_0"]
+
+    export_minari(session, tmp_path / "minari", dataset_id="surrol/NeedleReach/hil-v0", progress=False)
+    export_minari(demos, tmp_path / "minari", dataset_id="surrol/NeedleReach/demos-v0", progress=False)
+    monkeypatch.setenv("MINARI_DATASETS_PATH", str(tmp_path / "minari"))
+    for episode, traj in zip(minari.load_dataset("surrol/NeedleReach/hil-v0").iterate_episodes(), trajs, strict=True):
+        assert np.array_equal(episode.infos["is_intervention"][1:], traj.flags[INTERVENTION].any(axis=1))
+        assert not episode.infos["is_intervention"][0]
+        assert np.array_equal(episode.infos["policy_action"][1:], traj.policy_action)
+    plain = next(minari.load_dataset("surrol/NeedleReach/demos-v0").iterate_episodes())
+    assert "is_intervention" not in plain.infos and "policy_action" not in plain.infos

@@ -5,7 +5,9 @@ Each episode becomes a :class:`minari.data_collector.EpisodeBuffer` — ``observ
 ``rewards`` (N,), ``terminations`` (the env's terminated), ``truncations`` (True at the last step unless it
 terminated), ``infos["is_success"]`` (N+1; False at reset) — and :func:`minari.create_dataset_from_buffers`
 writes Minari's layout. The episode's provenance goes in as Minari episode metadata (read back with
-``dataset.storage.get_episode_metadata``).
+``dataset.storage.get_episode_metadata``). An intervention session's episodes (``collect --source intervene``) also
+carry ``infos["is_intervention"]`` (N+1, bool) and ``infos["policy_action"]`` (N+1, A): who acted at each step and
+what the policy proposed (False / zeros at reset).
 
 Where it lands: ``--out DIR`` is used as ``MINARI_DATASETS_PATH``, so the files are
 ``DIR/<namespace>/<dataset name>-v<k>/data/{metadata.json, main_data.hdf5}`` and
@@ -25,6 +27,7 @@ from surrol_data.datasets.episode_ranges import chosen_episodes
 from surrol_data.datasets.info import read_sidecar
 from surrol_data.datasets.reader import DatasetError, DatasetReader
 from surrol_data.datasets.schema import PROVENANCE_COLUMNS, package_version
+from surrol_data.datasets.trajectory import INTERVENTION
 
 
 @contextmanager
@@ -48,6 +51,16 @@ def _registered_spec(env_id: str):
     import surrol_data.envs  # noqa: F401  (registers the ids)
 
     return gym.spec(env_id) if env_id in gym.registry else None
+
+
+def _intervention_infos(traj) -> dict:
+    """Who acted and the policy's proposal, aligned with Minari's N+1 infos (the reset entry first)."""
+    if traj.policy_action is None:
+        return {}
+    acted = traj.flags[INTERVENTION].reshape(len(traj), -1).any(axis=1)
+    return {"is_intervention": np.concatenate([[False], acted]),
+            "policy_action": np.concatenate([np.zeros((1, traj.policy_action.shape[1]), np.float32),
+                                             traj.policy_action])}
 
 
 def default_dataset_id(task: str, name: str) -> str:
@@ -103,7 +116,7 @@ def export_minari(src: str | Path, out: str | Path, *, dataset_id: str | None = 
                           "desired_goal": traj.desired_goal},
             actions=traj.action, rewards=traj.reward.astype(np.float64).tolist(),
             terminations=traj.terminated.tolist(), truncations=truncations.tolist(),
-            infos={"is_success": np.concatenate([[False], traj.success])}))
+            infos={"is_success": np.concatenate([[False], traj.success]), **_intervention_infos(traj)}))
         meta = {k: (row[k].item() if isinstance(row[k], np.generic) else row[k]) for k in PROVENANCE_COLUMNS}
         meta["episode_index"] = int(ep)
         metadata.append(meta)

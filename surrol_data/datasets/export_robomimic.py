@@ -9,6 +9,8 @@ Layout (shared/docs/reference/algorithms.md §6.1)::
         next_obs/<key>  (N, dim): s_1..s_N
         actions (N, A), rewards (N,), dones (N,) (1 where the env terminated, and at the last step)
         states (N, obs_dim): the observation vector (robomimic wants one; SurRoL has no MuJoCo state)
+        is_intervention (N,) float32, intervention_arms (N, n_arms) uint8, policy_actions (N, A): who acted and
+            what the policy proposed, for episodes of an intervention session (``collect --source intervene``)
     mask/<key>          byte strings of demo names — filter keys:
         train, valid                       (stratified split, see surrol_data.datasets.split)
         skill_<skill>, operator_<id>, source_<source>, successful
@@ -32,6 +34,7 @@ from surrol_data.datasets.info import read_sidecar
 from surrol_data.datasets.reader import DatasetError, DatasetReader
 from surrol_data.datasets.schema import PROVENANCE_COLUMNS
 from surrol_data.datasets.split import split_episodes
+from surrol_data.datasets.trajectory import INTERVENTION
 
 GYM_ENV_TYPE = 2  # robomimic.envs.env_base.EnvType.GYM_TYPE
 OBS_KEYS = ("observation", "achieved_goal", "desired_goal")
@@ -96,6 +99,11 @@ def export_robomimic(src: str | Path, out: str | Path, *, where: str | None = No
             demo.create_dataset("rewards", data=traj.reward.astype(np.float64))
             demo.create_dataset("dones", data=dones)
             demo.create_dataset("states", data=traj.observation[:-1])
+            if traj.policy_action is not None:   # robomimic reads none of these; HIL learners (HG-DAgger) do
+                arms = traj.flags[INTERVENTION].reshape(n, -1)
+                demo.create_dataset("is_intervention", data=arms.any(axis=1).astype(np.float32))
+                demo.create_dataset("intervention_arms", data=arms.astype(np.uint8))
+                demo.create_dataset("policy_actions", data=traj.policy_action)
             demo.attrs["num_samples"] = n
             demo.attrs["episode_index"] = int(ep)
             row = rows.loc[ep]
