@@ -79,6 +79,10 @@ def adapt(command: str, home: Path) -> list[str] | None:
     if args[1] == "study":   # the Table I study takes hours: the same pipeline on its tiny config, one seed
         args[2] = "table1_quick"
         args += ["--override", "experiment.study.seeds=[0]"]
+    if args[1] == "interventions":   # the demos-or-interventions experiment takes an hour: one tiny round
+        args += [x for k in ("tasks=[NeedleReach]", "seeds=[0]", "base_demos=1", "rounds=1", "rollouts_per_round=1",
+                             "eval_episodes=1", "bc_epochs=1", "bc_steps_per_epoch=5")
+                 for x in ("--override", f"experiment.interventions.{k}")]
     if args[1] == "demo":
         args += ["--out", f"demo_out_{next(_OUTPUTS)}", "--num-episodes", "3", "--eval-episodes", "2"]
     for i, arg in enumerate(args[:-1]):
