@@ -97,6 +97,7 @@ class _Cell:
             out, spec, task, seed, done, progress, say
         self.work = out / "work" / task / f"seed{seed}"
         self.demos = self.work / "demos"
+        self.clock = time.process_time()    # CPU seconds since the last row: what each step of the arm cost
 
     # data
 
@@ -184,7 +185,9 @@ class _Cell:
         started = time.process_time()
         row = {"task": self.task, "seed": self.seed, "arm": arm, "round": round_, "human_frames": int(human_frames),
                **extra, **self.evaluate(policy_path)}
-        row["eval_cpu_s"] = round(time.process_time() - started, 2)
+        now = time.process_time()
+        row["eval_cpu_s"], row["cpu_s"] = round(now - started, 2), round(now - self.clock, 2)
+        self.clock = now
         with open(self.out / RESULTS, "a") as f:
             f.write(json.dumps(row) + "\n")
         self.done[key] = row
@@ -297,9 +300,11 @@ def _markdown(table: list[dict], spec: InterventionSpec, figure: str, rows: Sequ
                          f"{d['demos']:.1f} | {d['human_frames']:.0f} | {pct(d['success'])} |"
                          if i and d else f"| {r} | – | – | – | – | – | – |")
         lines.append("")
+    cpu = sum(r.get("cpu_s", 0.0) for r in rows)
     lines += ["## What made these numbers", "",
-              f"{len(rows)} evaluated policies in `{RESULTS}`; rebuilt with `surrol-data interventions --out OUT "
-              "--report`.", ""]
+              f"{len(rows)} evaluated policies in `{RESULTS}` ({cpu / 60:.1f} CPU minutes of recording, training and "
+              f"evaluation, {sum(r.get('eval_cpu_s', 0.0) for r in rows) / 60:.1f} of them evaluation); rebuilt with "
+              "`surrol-data interventions --out OUT --report`.", ""]
     return "\n".join(lines)
 
 
