@@ -26,12 +26,13 @@ def test_gui_play_save_exit_records_a_valid_dataset(tmp_path):
     from surrol_data.gui.app import DEVICES, TrainingApp
 
     app = TrainingApp(out=tmp_path, offscreen=True, size=(640, 360))
-    clicks = []
+    clicks, seen = [], []
 
     def trainee(task):
         """Clicks as a person would, watching the HUD: save attempt 1 mid-way, exit during attempt 2."""
         hud = app.hud
         if hud.attempt == 1 and hud.steps == SAVE_AT_STEP and "save" not in clicks:
+            seen.append(app.hud_text.getText())
             clicks.append("save")
             app.buttons["save"].commandFunc(None)
         elif hud.attempt == 2 and hud.steps == 3 and "exit" not in clicks:
@@ -50,6 +51,7 @@ def test_gui_play_save_exit_records_a_valid_dataset(tmp_path):
     app.run()
 
     assert clicks == ["save", "exit"]
+    assert "simulated operator (expert)" in seen[0]   # the HUD says who operates, and at which skill
     root = tmp_path / "NeedlePick"
     assert validate_dataset(root) == []
     reader = DatasetReader(root)
@@ -67,9 +69,24 @@ def test_keyboard_keys_of_the_window_drive_the_tool(tmp_path):
     from surrol_data.gui.keys import WindowKeys
 
     app = TrainingApp(out=tmp_path, offscreen=True, size=(480, 270))
+    send = app.base.messenger.send
+    # The mouse wheel over the task list scrolls it: the event Panda3D's GUI sends for a wheel turn over a card.
+    from panda3d.core import MouseButton, PGButton
+
+    from surrol_data.gui.app import WHEEL_DOWN, WHEEL_UP
+
+    assert WHEEL_DOWN == PGButton.get_press_prefix() + MouseButton.wheel_down().get_name() + "-"
+    assert WHEEL_UP == PGButton.get_press_prefix() + MouseButton.wheel_up().get_name() + "-"
+    bar = app.panel.verticalScroll
+    top = bar.getValue()
+    send(WHEEL_DOWN + app.cards["PegTransfer"].guiId, [None])
+    send(WHEEL_DOWN + app.cards["PegTransfer"].guiId, [None])
+    scrolled = bar.getValue()
+    send(WHEEL_UP + app.cards["NeedlePick"].guiId, [None])
+    assert scrolled > top and top < bar.getValue() < scrolled
+
     app.choose_task("NeedleReach")
     app.set_session("keyboard", "novice", "k1")
-    send = app.base.messenger.send
 
     def hand(task):
         # The events a real key press makes in the window: hold `d` (tool +x) for a while, then Esc.
@@ -127,7 +144,7 @@ def test_hud_counts_time_path_and_flags_per_attempt():
     assert hud.attempt == 1 and hud.steps == 3
     assert hud.path_m == pytest.approx(0.07)
     assert hud.time_s == pytest.approx(3 * CONTROL_PERIOD_S)
-    assert hud.success and hud.jaw_closed and not hud.clutch
+    assert hud.success and hud.jaw_closed == [True] and hud.clutch == [False]   # per arm
     hud.update(1, {"tip_position": [(1.0, 1.0, 1.0)], "is_success": False}, {})   # a new attempt starts afresh
     assert hud.attempt == 2 and hud.path_m == 0.0 and not hud.success
 
@@ -146,3 +163,133 @@ def test_gui_cli_refuses_bad_options(args, message):
     result = CliRunner().invoke(app, ["gui", *args])
     assert result.exit_code == 2
     assert message in " ".join(result.output.split())
+
+
+def test_a_slow_step_does_not_stop_the_window(tmp_path, monkeypatch):
+    """The window's loop keeps drawing while a step is slow: stepping runs off the window's thread (on the
+    window's thread, the loop could not draw one frame until the step returned, and this test would time out)."""
+    from surrol_data.collect.operator.operator import SimulatedOperator
+    from surrol_data.gui.app import TrainingApp
+
+    app = TrainingApp(out=tmp_path, offscreen=True, size=(320, 180))
+    app.choose_task("NeedleReach")
+    app.set_session("operator", "expert", "slow")
+    drawn_during_read = []
+    read = SimulatedOperator.read
+
+    def slow_read(self):
+        if not drawn_during_read:   # the first step: held until the window has drawn five more frames
+            start, deadline = len(app.frame_times), time.monotonic() + 120
+            while len(app.frame_times) < start + 5 and time.monotonic() < deadline:
+                time.sleep(0.01)
+            drawn_during_read.append(len(app.frame_times) - start)
+        return read(self)
+
+    def leave(task):
+        if app.hud.steps >= 2:
+            app.request_exit()
+        return task.cont
+
+    monkeypatch.setattr(SimulatedOperator, "read", slow_read)
+    app.base.taskMgr.remove("leave")
+    app.base.taskMgr.add(leave, "leave")
+    app.play()
+    app.run()
+    assert app.last_error is None
+    assert drawn_during_read and drawn_during_read[0] >= 5
+    assert app.steps_drawn >= 2   # and every step was drawn once it was taken
+
+
+def test_an_attempt_out_of_time_is_kept_only_when_saved(tmp_path):
+    """Nobody touches the keys: each attempt runs out of time and waits; f drops the first, Enter keeps the
+    second. The HUD shows the time limit and the keys."""
+    from surrol_data.datasets.reader import DatasetReader
+    from surrol_data.gui.app import TrainingApp
+    from surrol_data.gui.keys import WindowKeys
+
+    app = TrainingApp(out=tmp_path, offscreen=True, size=(480, 270))
+    app.choose_task("NeedleReach")
+    app.set_session("keyboard", "novice", "k2")
+    app.max_steps = 4
+    send = app.base.messenger.send
+    waited, shown = {1: 0, 2: 0}, []
+
+    def key(name):
+        send(WindowKeys.DOWN_EVENT, [name])
+        send(WindowKeys.UP_EVENT, [name])
+
+    def hand(task):
+        hud = app.hud
+        if hud.timed_out and hud.attempt in waited:
+            waited[hud.attempt] += 1   # frames drawn while the attempt waits for a decision
+            if waited[hud.attempt] == 10:
+                shown.append((app.hud_text.getText(), app.keys_text.getText()))
+                key("f" if hud.attempt == 1 else "enter")
+        elif hud.attempt == 3 and hud.steps == 1:
+            key("escape")
+        return task.cont
+
+    app.base.taskMgr.remove("hand")
+    app.base.taskMgr.add(hand, "hand")
+    app.exit_after_session = True
+    app.play()
+    app.run()
+    assert app.last_error is None
+    result = app.last_result
+    assert (result.discarded, result.kept, result.ended_by) == (1, 1, "operator")
+    assert waited == {1: 10, 2: 10}   # each out-of-time attempt waited (the session did not go on by itself)
+    reader = DatasetReader(tmp_path / "NeedleReach")
+    assert len(reader) == 1 and int(reader.episodes.iloc[0]["seed"]) == 1   # the kept one is the second attempt
+    hud_text, keys_text = shown[0]
+    assert "time   0.8 / 0.8 s" in hud_text and "TIME UP" in hud_text
+    assert "w a s d up left down right" in keys_text and "Enter save" in keys_text
+
+
+def test_two_arm_sessions_report_each_arms_jaw_and_clutch():
+    """BiPegTransfer with both hands on the keyboard: the left hand holds its jaw key, the right its clutch key;
+    the session reports each arm's buttons and the HUD shows both arms."""
+    import tempfile
+
+    from surrol_data.collect.devices.keyboard import KeyboardDevice, KeyEvent, KeyTracker
+    from surrol_data.collect.haptic_source import collect_haptic
+    from surrol_data.gui.hud import Hud
+
+    class Held:   # a key source whose keys are held down from the start
+        def __init__(self, keys):
+            self.events = [KeyEvent(k, True) for k in keys]
+
+        def start(self):
+            pass
+
+        def stop(self):
+            pass
+
+        def poll(self):
+            events, self.events = self.events, []
+            return events
+
+    tracker = KeyTracker(Held(["c", "b"]))   # c: the left hand's jaw; b: the right hand's clutch
+    flags = []
+    with tempfile.TemporaryDirectory() as out:
+        collect_haptic("BiPegTransfer", 1, out + "/ds", device=[KeyboardDevice(tracker, "left"),
+                                                                KeyboardDevice(tracker, "right")],
+                       max_steps=2, keep_failures=True, progress=False, realtime=False,
+                       on_step=lambda env, step, obs, info, f: flags.append((info, f)))
+    info, last = flags[-1]
+    assert last["jaw_buttons"] == [True, False] and last["clutches"] == [False, True]
+    hud = Hud(task="BiPegTransfer", arms=2)
+    hud.update(1, info, last)
+    assert "PSM1 jaw closed  clutch off   PSM2 jaw open  clutch ON" in hud.lines()
+
+
+def test_hud_shows_the_keys_and_the_time_limit():
+    from surrol_data.gui.hud import Hud
+
+    hud = Hud(task="BiPegTransfer", device="keyboard", arms=2, limit_steps=100)
+    keys = hud.key_lines()
+    assert keys[0].startswith("left hand: w a s d up left down right   q e toward away   z x roll   c jaw")
+    assert keys[1].startswith("right hand: i j k l up left down right   u o toward away")
+    assert "Enter save" in keys[-1] and "Esc end the session" in keys[-1]
+    assert "/ 20 s" in hud.lines()[1]   # 100 steps of 0.2 s
+    assert Hud(device="operator", skill="novice").lines()[0].endswith("simulated operator (novice)")
+    assert Hud(device="touch").key_lines()[0].startswith("Enter save")   # no keyboard keys for a Touch

@@ -100,7 +100,8 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
                    command: str | None = None, library: str | Path | None = None,
                    realtime: bool | None = None, key_tracker=None, on_step=None,
                    env_kwargs: dict | None = None, profile: str | None = None,
-                   policy: Policy | str | None = None, policy_info: dict | None = None) -> HapticResult:
+                   policy: Policy | str | None = None, policy_info: dict | None = None,
+                   timeout_needs_save: bool = False) -> HapticResult:
     """Record ``episodes`` kept teleoperated episodes of ``task`` into the dataset at ``out``.
 
     ``device``: a name of :data:`surrol_data.collect.devices.DEVICE_NAMES` (one device per arm is built with
@@ -117,6 +118,8 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
     :data:`surrol_data.collect.operator.profiles.MATCHED_PROFILES`); its skill must be ``skill``.
     ``policy``: an intervention session (see the module docstring): the policy acts and the operator takes over;
     ``policy_info`` is what the provenance records of it (spec, content hash, algorithm, training data).
+    ``timeout_needs_save``: an attempt that runs out of time without success waits for a session key: the save key
+    keeps it, redo / discard / end drop it (the training GUI; without a key source it changes nothing).
     """
     if episodes <= 0:
         raise ValueError(f"the number of episodes must be positive, got {episodes}")
@@ -153,7 +156,8 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
     try:
         return _Session(env, eid, episodes, out, device, names, operator_id, skill, sides, mapping, trace, seed,
                         horizon, keep_failures, append, gui, rerun_live, max_attempts or 3 * episodes, progress,
-                        command, library, realtime, key_tracker, on_step, profile, policy, policy_info).run()
+                        command, library, realtime, key_tracker, on_step, profile, policy, policy_info,
+                        timeout_needs_save).run()
     finally:
         env.close()
 
@@ -232,7 +236,9 @@ class _Session:
 
     def __init__(self, env, eid, episodes, out, device, names, operator_id, skill, sides, mapping, trace, seed,
                  horizon, keep_failures, append, gui, rerun_live, max_attempts, progress, command, library,
-                 realtime, key_tracker=None, on_step=None, profile=None, policy=None, policy_info=None):
+                 realtime, key_tracker=None, on_step=None, profile=None, policy=None, policy_info=None,
+                 timeout_needs_save=False):
+        self.timeout_needs_save = timeout_needs_save
         self.env, self.eid, self.episodes, self.out = env, eid, episodes, Path(out)
         self.task = eid.split("/")[1].rsplit("-v", 1)[0]
         self.operator_id, self.skill, self.seed, self.horizon = operator_id, skill, seed, horizon
@@ -393,6 +399,7 @@ class _Session:
         last_jaw = np.array([m.jaw for m in mappers], np.float32)
         driving = [self.policy is None] * len(self.devices)    # who drives each arm: the operator, or the policy
         after_success = None
+        saved = False
         start = time.monotonic()
         if self.live:
             self.live.begin(attempt_seed)
@@ -404,6 +411,7 @@ class _Session:
             command = self._session_command()
             if command == "save":
                 if k > 0:   # end the attempt here and record it as it stands
+                    saved = True
                     break
             elif command is not None:
                 return command, None, None
@@ -438,8 +446,10 @@ class _Session:
                 flags = {**flags, "operator": any(driving)}   # for the live view and on_step: who acted
             if self.live:
                 self.live.step(k, obs, action, info, flags)
-            if self.on_step is not None:
-                self.on_step(env, k + 1, obs, info, flags)
+            if self.on_step is not None:   # and each arm's buttons (a HUD shows both arms')
+                self.on_step(env, k + 1, obs, info,
+                             {**flags, "clutches": [s.clutch and d for s, d in zip(steps, driving, strict=True)],
+                              "jaw_buttons": [s.jaw_button and d for s, d in zip(steps, driving, strict=True)]})
             if info["is_success"] and after_success is None:
                 after_success = STEPS_AFTER_SUCCESS
             elif after_success is not None:
@@ -447,7 +457,19 @@ class _Session:
             if terminated or truncated or after_success == 0:
                 break
         self._duration = time.monotonic() - start
+        if self.timeout_needs_save and not saved and after_success is None and self.key_tracker is not None:
+            command = self._await_decision()   # out of time: kept only if the operator saves it
+            if command != "save":
+                return command, None, None
         return "done", builder.build(), frames
+
+    def _await_decision(self) -> str:
+        """The session key pressed after an attempt ran out of time (the window keeps drawing meanwhile)."""
+        while True:
+            command = self._session_command()
+            if command is not None:
+                return command
+            time.sleep(0.02)
 
     def _action(self, steps: list[MappedStep], mappers: list[ActionMapper]) -> np.ndarray:
         space = self.env.action_space

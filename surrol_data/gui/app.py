@@ -6,8 +6,11 @@ it; under the view the controls of ``collect --source haptic`` — device, opera
 buttons play, redo, discard, save and exit.
 
 Play runs a haptic session (:func:`surrol_data.collect.haptic_source.collect_haptic`, the same recorder and
-provenance as the CLI) into ``<out>/<task>``; the session calls back after every step, and the window
-draws a frame and handles its events then. Redo / discard / save / exit press the session keys
+provenance as the CLI) into ``<out>/<task>`` on a thread of its own, so the window never waits for the physics, the
+recorder or their start-up: it draws at its own pace. The two threads meet once per env step: the session thread
+waits while the window copies the step's PyBullet state into its scene (the only moment the window reads PyBullet
+during a session) and handles that frame's events, then steps on. Panda3D stays on the main thread. An attempt
+that runs out of time waits for the operator: save keeps it, redo / discard drop it. Redo / discard / save / exit press the session keys
 (``r`` / ``f`` / ``Enter`` / ``Esc``) through the window's key source, so the keyboard and the buttons
 do the same. Without a display the window is an offscreen buffer (tests, screenshots).
 
@@ -18,7 +21,9 @@ the arms to the operator's device until it is released; the HUD says who acts.
 
 from __future__ import annotations
 
+import threading
 import time
+from collections import deque
 from pathlib import Path
 
 import gymnasium as gym
@@ -28,8 +33,12 @@ from surrol_data.collect.devices.keyboard import DISCARD_KEY, QUIT_KEY, REDO_KEY
 from surrol_data.collect.haptic_source import SKILLS, has_display
 from surrol_data.envs import TASKS, env_id
 from surrol_data.gui.hud import Hud
+from surrol_data.envs.physics import ECM_CONTROL_PERIOD_S
+from surrol_data.envs.units import CONTROL_PERIOD_S
 from surrol_data.render import display
 
+# The events Panda3D's GUI items send when the mouse wheel turns over them (as DirectGuiGlobals' B1PRESS for clicks).
+WHEEL_UP, WHEEL_DOWN = "press-wheel_up-", "press-wheel_down-"
 # Devices offered in the panel: every device of `collect --source haptic` but replay (which needs a file).
 DEVICES = ("keyboard", "operator", "touch", "gamepad", "spacemouse")
 WINDOW_SIZE = (1280, 720)
@@ -37,7 +46,12 @@ PANEL_FRACTION = 0.34      # of the window's width, for the task panel
 CONTROLS_FRACTION = 0.16   # of the window's height, for the controls under the view
 THUMBNAIL = (192, 144)
 _IDLE_FRAME_S = 1 / 30
+_WHEEL_STEP = 0.08          # of the task list's height per wheel notch
 SESSION_EPISODES = 10_000   # a session records until exit unless told otherwise
+
+
+class _WindowClosed(RuntimeError):
+    """Raised in the session thread when the window closes while a step waits to be drawn."""
 
 
 def one_line(text: str) -> str:
@@ -87,10 +101,20 @@ class TrainingApp:
         self._preview_env = None
         self.session_episodes = SESSION_EPISODES
         self.exit_after_session = False
+        self.max_steps: int | None = None   # an attempt's time limit in steps (None: the human horizon)
+        # The session thread and its hand-over of each env step to the window (see the module docstring).
+        self._session_thread: threading.Thread | None = None
+        self._session_outcome = None
+        self._pending_step = None
+        self._step_drawn = threading.Event()
+        self._closing = False
+        self.frame_times: deque[float] = deque(maxlen=100_000)   # monotonic time of every drawn frame
+        self.steps_drawn = 0
 
         from surrol_data.gui.keys import WindowKeys
 
         self.keys = WindowKeys(self.base)
+        self.base.userExit = self.request_exit   # closing the window is the exit button, not sys.exit mid-session
         self._setup_view()
         self._build_panel()
         self._build_controls()
@@ -124,19 +148,27 @@ class TrainingApp:
                                          verticalScroll_frameColor=(0.2, 0.2, 0.22, 1))
         pictures = self._task_pictures()
         self.cards = {}
+        wheel_targets = [self.panel, self.panel.verticalScroll, self.panel.verticalScroll.thumb]
         for i, task in enumerate(TASKS):
             card = DirectButton(parent=self.panel.getCanvas(), frameSize=(0, width - 0.12, -card_h + 0.02, 0),
                                 pos=(0, 0, -card_h * i), relief=DGG.FLAT, frameColor=(0.18, 0.18, 0.2, 1),
                                 command=self.choose_task, extraArgs=[task], pressEffect=False)
+            wheel_targets.append(card)
             if task in pictures:
-                DirectFrame(parent=card, image=pictures[task], image_scale=(0.16, 1, 0.12),
-                            pos=(0.18, 0, -0.14), frameColor=(0, 0, 0, 0))
-            DirectLabel(parent=card, text=task, scale=0.05, pos=(0.37, 0, -0.07), text_align=TextNode.A_left,
-                        text_fg=(1, 1, 1, 1), frameColor=(0, 0, 0, 0))
-            DirectLabel(parent=card, text=one_line(self._description(task)), scale=0.034, pos=(0.37, 0, -0.13),
-                        text_align=TextNode.A_left, text_wordwrap=(width - 0.52) / 0.034,
-                        text_fg=(0.8, 0.8, 0.82, 1), frameColor=(0, 0, 0, 0))
+                wheel_targets.append(DirectFrame(parent=card, image=pictures[task], image_scale=(0.16, 1, 0.12),
+                                                 pos=(0.18, 0, -0.14), frameColor=(0, 0, 0, 0)))
+            wheel_targets.append(DirectLabel(parent=card, text=task, scale=0.05, pos=(0.37, 0, -0.07),
+                                             text_align=TextNode.A_left, text_fg=(1, 1, 1, 1), frameColor=(0, 0, 0, 0)))
+            wheel_targets.append(DirectLabel(parent=card, text=one_line(self._description(task)), scale=0.034,
+                                             pos=(0.37, 0, -0.13), text_align=TextNode.A_left,
+                                             text_wordwrap=(width - 0.52) / 0.034, text_fg=(0.8, 0.8, 0.82, 1),
+                                             frameColor=(0, 0, 0, 0)))
             self.cards[task] = card
+        # The mouse wheel scrolls the list: Panda3D sends a wheel turn to the GUI item under the pointer (the
+        # window's own wheel events are suppressed there), so every item of the panel listens for it.
+        for item in wheel_targets:
+            item.bind(WHEEL_UP, lambda _event: self.scroll_tasks(-1))
+            item.bind(WHEEL_DOWN, lambda _event: self.scroll_tasks(1))
 
     def _build_controls(self) -> None:
         from direct.gui.DirectGui import DirectButton, DirectEntry, DirectLabel, DirectOptionMenu
@@ -191,6 +223,10 @@ class TrainingApp:
         x = -aspect + 2 * aspect * PANEL_FRACTION + 0.04
         self.hud_text = OnscreenText(text="", pos=(x, 0.92), scale=0.045, align=TextNode.A_left,
                                      fg=(0.95, 0.95, 0.6, 1), shadow=(0, 0, 0, 1), mayChange=True)
+        # The keys that work, at the foot of the view (a new user should not need the README to operate).
+        self.keys_text = OnscreenText(text="", pos=(x, -1 + 2 * CONTROLS_FRACTION + 0.09), scale=0.035,
+                                      align=TextNode.A_left, fg=(0.85, 0.9, 1.0, 1), shadow=(0, 0, 0, 1),
+                                      mayChange=True)
 
     # ------------------------------------------------------------------ task pictures and descriptions
     @staticmethod
@@ -229,6 +265,12 @@ class TrainingApp:
         return pictures
 
     # ------------------------------------------------------------------ actions
+    def scroll_tasks(self, notches: int) -> None:
+        """Scroll the task list by ``notches`` wheel notches (positive: down the list)."""
+        bar = self.panel.verticalScroll
+        low, high = bar["range"]
+        bar.setValue(min(high, max(low, bar.getValue() + notches * _WHEEL_STEP * (high - low))))
+
     def choose_task(self, task: str) -> None:
         if self._session_running:
             return
@@ -242,7 +284,11 @@ class TrainingApp:
         self._preview_env = gym.make(env_id(task), render_mode="rgb_array")
         self._preview_env.reset(seed=self.seed)
         self._show_env(self._preview_env)
-        self.hud.task = task
+        act_dim = self._preview_env.action_space.shape[0]
+        ecm = act_dim % 5 != 0   # an ECM task: one camera, 0.1 s steps
+        self.hud.task, self.hud.arms = task, 1 if ecm else act_dim // 5
+        self.hud.period_s = ECM_CONTROL_PERIOD_S if ecm else CONTROL_PERIOD_S
+        self.hud.intervention = self.policy is not None
         self.status["text"] = f"{task}: press play"
 
     def set_session(self, device: str, skill: str, operator_id: str) -> None:
@@ -284,8 +330,9 @@ class TrainingApp:
         if self._session_running:
             self.keys.press(QUIT_KEY)
 
-    # ------------------------------------------------------------------ drawing
+    # ------------------------------------------------------------------ drawing (the main thread)
     def _show_env(self, env) -> None:
+        """Build the scene of ``env``'s PyBullet world and draw it (the session thread, if any, is waiting)."""
         from surrol_data.render.env_view import EnvEndoscope
         from surrol_data.render.stage import EndoscopeStage
 
@@ -296,64 +343,117 @@ class TrainingApp:
             self._stage = EndoscopeStage(self._endoscope.client, self._endoscope.scene_scale)
             self._stage.root.reparent_to(self.base.render)
             self._stage_client = env.unwrapped.client
-        self._draw()
+        self._sync_scene()
 
-    def _draw(self) -> None:
+    def _sync_scene(self) -> None:
+        """Copy the PyBullet poses into the scene: only while no session steps (or while it waits for this)."""
         if self._stage is not None:
             self._stage.update(self._endoscope.pose())
             self._stage.place_camera(self.base.cam)
+
+    def _draw(self) -> None:
+        """One frame: the step the session thread handed over (if any) into the scene, the HUD, then Panda3D's
+        frame (drawing, clicks, keys, the window's tasks); the session thread steps on after it."""
+        pending = self._pending_step
+        if pending is not None:
+            env, step, info, flags = pending
+            if self._stage_client is not env.unwrapped.client:
+                self._show_env(env)
+                if self._preview_env is not None:   # the session's world replaces the preview's
+                    self._preview_env.close()
+                    self._preview_env = None
+            else:
+                self._sync_scene()
+            self.hud.update(step, info, flags)
+        if not self._session_running:   # the menus' choices, shown before play
+            self.hud.device = self.device
+            self.hud.skill = "expert" if self.device == "operator" and self.skill == "unknown" else self.skill
         self.hud_text.setText("\n".join(self.hud.lines()) if self.task else "")
+        self.keys_text.setText("\n".join(self.hud.key_lines()) if self.task else "")
         self.base.taskMgr.step()
+        self.frame_times.append(time.monotonic())
+        if pending is not None:
+            self.steps_drawn += 1
+            self._pending_step = None
+            self._step_drawn.set()
 
     def frame(self) -> None:
-        """One idle frame: draw, handle clicks and keys, start a requested session."""
+        """One frame of the window's loop: start a requested session, draw, notice a session that ended."""
         if self._play_requested:
             self._play_requested = False
-            self._run_session()
-        else:
-            self._draw()
+            self._start_session()
+        self._draw()
+        if self._session_thread is not None and not self._session_thread.is_alive():
+            self._session_ended()
 
     def run(self, screenshot: str | Path | None = None) -> None:
-        """The window's loop until exit; ``screenshot``: write the last frame there (PNG) before closing."""
-        while not self.exit_requested:
-            start = time.monotonic()
-            self.frame()
-            time.sleep(max(0.0, _IDLE_FRAME_S - (time.monotonic() - start)))
-        if screenshot is not None:
-            self.screenshot(screenshot)
-        self.close()
+        """The window's loop until exit (a running session ends first, its finished episodes saved);
+        ``screenshot``: write the last frame there (PNG) before closing."""
+        try:
+            while not self.exit_requested or self._session_thread is not None:
+                start = time.monotonic()
+                self.frame()
+                time.sleep(max(0.0, _IDLE_FRAME_S - (time.monotonic() - start)))
+            if screenshot is not None:
+                self.screenshot(screenshot)
+        finally:
+            self.close()
 
-    # ------------------------------------------------------------------ the session
-    def _run_session(self) -> None:
-        from surrol_data.collect.devices import DeviceError
+    # ------------------------------------------------------------------ the session (its own thread)
+    def _start_session(self) -> None:
         from surrol_data.collect.devices.keyboard import KeyTracker
-        from surrol_data.collect.haptic_source import collect_haptic
 
         task, out = self.task, self.out / (self.task if self.policy is None else f"{self.task}_intervene")
         self.last_task = task
         skill = "expert" if self.device == "operator" and self.skill == "unknown" else self.skill
+        self.hud = Hud(task=task, device=self.device, skill=skill, arms=self.hud.arms,
+                       intervention=self.policy is not None, period_s=self.hud.period_s)
         self._session_running = True
         self.status["text"] = f"recording into {out.parent.name}/{out.name}"
         self.keys.start()
-        tracker = KeyTracker(self.keys)
-        if self._preview_env is not None:
-            self._preview_env.close()
-            self._preview_env = None
+        kwargs = dict(
+            device=self.device, operator_id=self.operator_id or "anonymous", skill=skill, seed=self.seed,
+            keep_failures=True, append=(out / "meta" / "info.json").exists(), gui=False, progress=False,
+            command=f"surrol-data gui --out {self.out}", key_tracker=KeyTracker(self.keys), on_step=self._on_step,
+            env_kwargs={"render_mode": "rgb_array"}, max_attempts=SESSION_EPISODES, max_steps=self.max_steps,
+            # A person watches every step: the session runs at the arm's pace for every device, the simulated
+            # operator included; an attempt out of time is kept only if the operator saves it.
+            realtime=True, timeout_needs_save=True, policy=self.policy, policy_info=self.policy_info)
+        self._session_outcome = None
+        self._session_thread = threading.Thread(target=self._session_body, args=(task, out, kwargs),
+                                                name="surrol-gui-session")
+        self._session_thread.start()
+
+    def _session_body(self, task: str, out: Path, kwargs: dict) -> None:
+        """The session thread: the whole haptic session, its outcome kept for the window to report."""
+        from surrol_data.collect.haptic_source import collect_haptic
+
         try:
-            self.last_result = collect_haptic(
-                task, self.session_episodes, out, device=self.device, operator_id=self.operator_id or "anonymous",
-                skill=skill, seed=self.seed, keep_failures=True, append=(out / "meta" / "info.json").exists(),
-                gui=False, progress=False, command=f"surrol-data gui --out {self.out}", key_tracker=tracker,
-                on_step=self._on_step, env_kwargs={"render_mode": "rgb_array"}, max_attempts=SESSION_EPISODES,
-                policy=self.policy, policy_info=self.policy_info)
-            self.status["text"] = f"saved {self.last_result.kept} episode(s)"
-        except (ValueError, RuntimeError, FileExistsError) as e:   # DeviceError is a RuntimeError
-            self.last_error = str(e) if not isinstance(e, DeviceError) else f"device: {e}"
+            self._session_outcome = collect_haptic(task, self.session_episodes, out, **kwargs)
+        except BaseException as e:   # reported (or raised again) by the window's thread
+            self._session_outcome = e
+
+    def _session_ended(self) -> None:
+        from surrol_data.collect.devices import DeviceError
+
+        self._session_thread.join()
+        self._session_thread = None
+        self._session_running = False
+        self._stage_client = None
+        self.keys.stop()
+        outcome, task = self._session_outcome, self.last_task
+        self.exit_requested = self.exit_requested or self.exit_after_session
+        if isinstance(outcome, DeviceError):
+            self.last_error = f"device: {outcome}"
+        elif isinstance(outcome, (ValueError, RuntimeError, FileExistsError)) and not isinstance(outcome, _WindowClosed):
+            self.last_error = str(outcome)
+        elif isinstance(outcome, BaseException) and not isinstance(outcome, _WindowClosed):
+            raise outcome
+        elif not isinstance(outcome, BaseException):
+            self.last_result = outcome
+            self.status["text"] = f"saved {outcome.kept} episode(s)"
+        if self.last_error:
             self.status["text"] = self.last_error[:80]
-        finally:
-            self._session_running = False
-            self._stage_client = None
-            self.exit_requested = self.exit_requested or self.exit_after_session
         if not self.exit_requested:
             self.choose_task(task)
 
@@ -365,10 +465,14 @@ class TrainingApp:
         self.buttons["play"].commandFunc(None)
 
     def _on_step(self, env, step: int, obs, info, flags) -> None:
-        if step == 1 and self._stage_client is not env.unwrapped.client:
-            self._show_env(env)
-        self.hud.update(step, info, flags)
-        self._draw()
+        """The session thread, after each env step: hand the step to the window and wait until it is drawn."""
+        if step == 1:
+            self.hud.limit_steps = env.spec.max_episode_steps if env.spec is not None else None
+        self._step_drawn.clear()
+        self._pending_step = (env, step, info, flags)
+        while not self._step_drawn.wait(0.05):
+            if self._closing:
+                raise _WindowClosed("the window closed during the session (its finished episodes are saved)")
 
     # ------------------------------------------------------------------ output
     def screenshot(self, path: str | Path) -> Path:
@@ -382,6 +486,11 @@ class TrainingApp:
         return path
 
     def close(self) -> None:
+        """Close the window; a session still running ends first (its finished episodes are saved)."""
+        self._closing = True
+        if self._session_thread is not None:
+            self.keys.press(QUIT_KEY)
+            self._session_thread.join(timeout=60)
         if self._preview_env is not None:
             self._preview_env.close()
             self._preview_env = None

@@ -47,12 +47,15 @@ class WindowKeys:
         self._events.append(KeyEvent(key, down))
 
     def start(self) -> None:
-        self._events.clear()
+        self._events.clear()   # keys typed before play are not commands to the session
 
     def stop(self) -> None:
         pass
 
     def poll(self) -> list[KeyEvent]:
-        events = list(self._events)
-        self._events.clear()
+        # The session thread polls while the window's thread appends: take events one by one (atomic),
+        # so none that arrives meanwhile is lost.
+        events = []
+        while self._events:
+            events.append(self._events.popleft())
         return events
