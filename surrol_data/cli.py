@@ -672,7 +672,8 @@ def view(dataset: Path = typer.Argument(..., help="Dataset folder."),
          out: Optional[Path] = typer.Option(None, help="Rerun recording to write (.rrd)."),
          episodes: str = typer.Option("0", help="Episode indices to show side by side, e.g. 0,3,5-9."),
          web: bool = typer.Option(False, help="Serve the recording in Rerun's web viewer (until Ctrl-C)."),
-         web_port: int = typer.Option(9090, help="Port of the web viewer with --web."),
+         web_port: Optional[int] = typer.Option(None, min=1, max=65535, help="Port of the web viewer with --web "
+                                                "(default: a free one)."),
          open_browser: bool = typer.Option(True, help="With --web: open the viewer in the default browser.")):
     """Rerun view of dataset episodes: instruments, tool paths, objects, goal, actions, jaw, clutch, camera, provenance."""
     from surrol_data.datasets.info import read_sidecar
@@ -683,6 +684,13 @@ def view(dataset: Path = typer.Argument(..., help="Dataset folder."),
 
     if out is None and not web:
         _fail("say where the recording goes: --out FILE.rrd, and/or --web to serve it in Rerun's web viewer")
+    if web:
+        from surrol_data.viz.ports import free_port, port_taken
+
+        if web_port is not None and port_taken(web_port):
+            _fail(f"--web-port {web_port} is taken (another program listens there); choose another, or leave "
+                  "--web-port out to use a free one")
+        web_port = web_port or free_port()
     wanted = _episode_indices(episodes)
     try:
         require_valid(dataset, _note)
@@ -715,18 +723,29 @@ def view(dataset: Path = typer.Argument(..., help="Dataset folder."),
 
 
 def _serve_web(items, rcms, web_port: int, open_browser: bool) -> None:
-    """Serve the episodes from this process: a gRPC server holds the recording, the web viewer reads it."""
+    """Serve the episodes from this process: a gRPC server holds the recording, the web viewer reads it.
+
+    Both listen on ports free a moment before (not Rerun's fixed 9876, where another viewer's server would hand
+    this one its data); the URL is printed only once the data is in the server and the viewer's page answers."""
     import time
+    from urllib.parse import quote
 
     import rerun as rr
 
+    from surrol_data.viz.ports import free_port, wait_for_http
     from surrol_data.viz.rerun_log import APPLICATION_ID, log_trajectories
 
     rec = rr.RecordingStream(APPLICATION_ID)
-    url = rec.serve_grpc()
+    url = rec.serve_grpc(grpc_port=free_port())
     log_trajectories(rec, items, rcm_positions=rcms)
+    rec.flush()
     rr.serve_web_viewer(web_port=web_port, open_browser=open_browser, connect_to=url)
-    console.print(f"Rerun web viewer at http://localhost:{web_port} (data from {url}); Ctrl-C stops it")
+    if not wait_for_http(web_port):
+        _fail(f"Rerun's web viewer did not answer on port {web_port}; try another --web-port")
+    # The viewer's page alone connects to nothing (Rerun connects it only in the browser it opens itself): the
+    # printed address carries the data server's URL.
+    page = f"http://localhost:{web_port}/?url={quote(url, safe='')}"
+    console.print(f"Rerun web viewer at {page} (data from {url}); Ctrl-C stops it", highlight=False, soft_wrap=True)
     try:
         while True:
             time.sleep(1.0)

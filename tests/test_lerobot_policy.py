@@ -146,3 +146,40 @@ def test_lerobot_eval_plugin_gives_the_dataset_keys():
         assert image.shape == (1, 3, 24, 32) and 0.0 <= float(image.min()) <= float(image.max()) <= 1.0
     finally:
         vec.close()
+
+
+def test_lerobot_eval_of_a_camera_policy_without_the_camera_size_takes_the_policys(tmp_path, monkeypatch):
+    """`lerobot-eval --env.type=surrol --policy.path=P` of a policy trained on the endoscope video, without
+    --env.camera_width/height: the env renders the image at the policy's size (not `KeyError:
+    'observation.images.endoscope'` deep in lerobot)."""
+    import sys
+
+    from lerobot.envs.utils import env_to_policy_features
+
+    from surrol_data.evaluation.lerobot_env import SurrolEnv
+
+    pretrained = _save_act(tmp_path, camera=(24, 32)) / "checkpoints" / "last" / "pretrained_model"
+    monkeypatch.setattr(sys, "argv", ["lerobot-eval", "--env.type=surrol", "--env.task=NeedlePick",
+                                      f"--policy.path={pretrained}"])
+    config = SurrolEnv(task="NeedlePick")
+    assert (config.camera_width, config.camera_height) == (32, 24)
+    assert tuple(env_to_policy_features(config)["observation.images.endoscope"].shape) == (3, 24, 32)
+    monkeypatch.setattr(sys, "argv", ["lerobot-eval", f"--policy.path={tmp_path / 'elsewhere'}"])
+    assert SurrolEnv(task="NeedlePick").camera_width == 0   # a policy without the image (or none there): no camera
+
+
+def test_the_documented_act_command_plans_chunks_that_fit_the_data():
+    """docs/training.md's lerobot-train command: ACT's chunks (default 100 steps, made for 50 Hz) must fit data at
+    5 frames/s whose episodes last at most 50 steps: at most 2 s of actions per chunk, replanned within it."""
+    import re
+    from pathlib import Path
+
+    from surrol_data.datasets.schema import FPS
+    from surrol_data.envs import DEFAULT_MAX_EPISODE_STEPS
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "training.md").read_text().replace("\\\n", " ")
+    command = next(line for line in text.splitlines() if "lerobot-train" in line and "--policy.type=act" in line)
+    value = lambda name: int(re.search(rf"--policy\.{name}=(\d+)", command)[1])  # noqa: E731
+    chunk, steps = value("chunk_size"), value("n_action_steps")
+    assert chunk <= 2 * FPS and chunk <= DEFAULT_MAX_EPISODE_STEPS["NeedlePick"] // 2
+    assert 1 <= steps <= chunk

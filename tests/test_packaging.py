@@ -61,3 +61,30 @@ def test_wheel_installed_outside_the_repo_trains_and_runs_the_demo(tmp_path):
     wheel_only = subprocess.run([str(py), "-c", "import surrol_data.train_app as t; print(t.config_dir())"], cwd=work,
                                 env=env, capture_output=True, text=True, timeout=120)
     assert "site-packages" in wheel_only.stdout    # configs came from the wheel, not from a checkout
+
+
+def test_the_lerobot_train_extra_brings_what_each_documented_policy_needs():
+    """Every LeRobot policy the docs name (`--policy.type=X`, and ACT / Diffusion in prose) trains after
+    `pip install 'surrol-data[lerobot-train]'`: where lerobot has an extra for the policy (Diffusion: diffusers),
+    ours asks for it, and uv.lock resolves it."""
+    import importlib.metadata
+    import re
+    import tomllib
+
+    root = Path(__file__).resolve().parents[1]
+    text = " ".join(p.read_text() for p in [root / "README.md", *sorted((root / "docs").glob("*.md"))])
+    named = {m.lower() for m in re.findall(r"--policy\.type=(\w+)", text)}
+    named |= {name for name, word in (("act", "ACT"), ("diffusion", "Diffusion")) if re.search(rf"\b{word}\b", text)}
+    assert {"act", "diffusion"} <= named
+    lerobot_extras = set(importlib.metadata.metadata("lerobot").get_all("Provides-Extra") or [])
+    needed = sorted(named & lerobot_extras)   # the policies lerobot installs extra packages for
+    assert "diffusion" in needed
+    project = tomllib.loads((root / "pyproject.toml").read_text())["project"]
+    ours = " ".join(project["optional-dependencies"]["lerobot-train"])
+    for policy in needed:
+        assert re.search(rf"lerobot\[[\w,-]*\b{policy}\b", ours), f"the lerobot-train extra lacks lerobot[{policy}]"
+    lock = tomllib.loads((root / "uv.lock").read_text())
+    ours_locked = next(p for p in lock["package"] if p["name"] == "surrol-data")
+    locked = {d["name"] for d in ours_locked["optional-dependencies"]["lerobot-train"]}
+    assert "lerobot" in locked
+    assert any(p["name"] == "diffusers" for p in lock["package"])   # what lerobot[diffusion] brings

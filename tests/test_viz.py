@@ -203,30 +203,57 @@ def test_instrument_matches_the_simulated_arm_and_opens_its_jaws(tmp_path):
 
 
 def test_view_serves_the_web_viewer(tmp_path):
-    """`view --web` answers on its HTTP port with Rerun's web viewer page."""
+    """`view --web` without a port, while Rerun's default ports (9090, 9876) are taken: it picks free ones, and the
+    address it prints is the viewer's page connected to its own data server (not a page that shows nothing)."""
+    import re
     import socket
-    import time
     import urllib.request
 
     from surrol_data.collect.script_source import collect_script
 
     collect_script("NeedleReach", 1, tmp_path / "ds", progress=False)
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
+    squatters = []
+    for port in (9090, 9876):   # another viewer's servers, as a second `view --web` would meet them
+        s = socket.socket()
+        try:
+            s.bind(("", port))
+            s.listen()
+            squatters.append(s)
+        except OSError:
+            s.close()   # taken already: all the better
     proc = subprocess.Popen([sys.executable, "-m", "surrol_data.cli", "view", str(tmp_path / "ds"), "--web",
-                             "--web-port", str(port), "--no-open-browser"],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            env={**os.environ, "RERUN_ANALYTICS": "off"})
+                             "--no-open-browser"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            env={**os.environ, "RERUN_ANALYTICS": "off", "COLUMNS": "300"})
     try:
-        page = ""
-        for _ in range(120):
-            try:
-                page = urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=2).read().decode()
+        printed = []
+        for line in proc.stdout:   # progress notes first, then the address (or the end of the output)
+            printed.append(line)
+            if "http://" in line:
                 break
-            except OSError:
-                time.sleep(0.5)
-        assert "<html" in page.lower() and "rerun" in page.lower()
+        found = re.search(r"http://localhost:(\d+)/\?url=rerun%2Bhttp%3A%2F%2F[^%]+%3A(\d+)%2Fproxy", printed[-1])
+        assert found, "".join(printed)
+        web_port, grpc_port = int(found[1]), int(found[2])
+        assert {web_port, grpc_port}.isdisjoint({9090, 9876})
+        page = urllib.request.urlopen(f"http://127.0.0.1:{web_port}/", timeout=10).read().decode()
+        assert "<html" in page.lower() and "rerun" in page.lower()   # it answered before the address was printed
+        with socket.create_connection(("127.0.0.1", grpc_port), timeout=10):
+            pass   # and its data server listens
     finally:
         proc.terminate()
         proc.wait(timeout=30)
+        for s in squatters:
+            s.close()
+
+
+def test_view_web_port_taken_is_a_clear_error(tmp_path):
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("", 0))
+        s.listen()
+        taken = s.getsockname()[1]
+        run = subprocess.run([sys.executable, "-m", "surrol_data.cli", "view", str(tmp_path / "any"), "--web",
+                              "--web-port", str(taken), "--no-open-browser"], capture_output=True, text=True,
+                             timeout=300, env={**os.environ, "COLUMNS": "300"})
+    assert run.returncode == 2 and "Traceback" not in run.stderr
+    assert f"--web-port {taken} is taken" in " ".join((run.stdout + run.stderr).split())

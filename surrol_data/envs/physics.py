@@ -195,12 +195,50 @@ def _disconnect_at_exit(ref: weakref.ref) -> None:
             client.disconnect()
 
 
+class NoDisplayError(RuntimeError):
+    """``render_mode="human"`` where no X display answers: PyBullet's window would end the whole process."""
+
+
+def _x_display_problem() -> str | None:
+    """Why PyBullet's window could not open here (Linux: an X display must answer), or None."""
+    import socket
+
+    if not sys.platform.startswith("linux"):
+        return None
+    name = os.environ.get("DISPLAY", "")
+    if not name:
+        return "DISPLAY is unset"
+    host, _, rest = name.rpartition(":")
+    number = rest.split(".")[0]
+    if not number.isdigit():
+        return f"DISPLAY={name!r} is not an X display name"
+    if host in ("", "unix"):   # a local server: its socket (a file, or Linux's abstract namespace)
+        addresses = [(socket.AF_UNIX, f"/tmp/.X11-unix/X{number}"), (socket.AF_UNIX, f"\0/tmp/.X11-unix/X{number}")]
+    else:
+        addresses = [(socket.AF_INET, (host, 6000 + int(number)))]
+    for family, address in addresses:
+        with socket.socket(family, socket.SOCK_STREAM) as s:
+            s.settimeout(2.0)
+            try:
+                s.connect(address)
+                return None
+            except OSError:
+                continue
+    return f"no X server answers at DISPLAY={name!r}"
+
+
 def make_client(gui: bool = False, renderer: bool = True) -> Client:
     """A fresh PyBullet world with this project's physics settings (no module-level client anywhere).
 
     ``renderer=False``, for a world that is never rendered (no camera, no render mode): PyBullet's built-in
     TinyRenderer is unloaded. Otherwise every body created builds render meshes (of its collision shapes when it
     has no visual ones), more than half the cost of an env's reset; the physics never reads them."""
+    problem = _x_display_problem() if gui else None
+    if problem:   # checked here: PyBullet itself would exit the process, not raise
+        raise NoDisplayError(
+            f"render_mode='human' opens a PyBullet window, which needs an X display, but {problem}. Run it on a "
+            "desktop, or in a virtual display (`apt-get install xvfb`, then `xvfb-run -a python ...`); or use "
+            "render_mode='rgb_array' (images, no window)")
     with _stdout_silenced(not gui):
         client = Client(connection_mode=pb.GUI if gui else pb.DIRECT)
     atexit.register(_disconnect_at_exit, weakref.ref(client))

@@ -13,7 +13,8 @@ hence this module is one)::
 onto the dataset keys the policy was trained on: ``agent_pos`` → ``observation.state``,
 ``environment_state`` (achieved goal then desired goal, as in :mod:`surrol_data.datasets.schema`) →
 ``observation.environment_state`` and, with ``--env.camera_width/height``, ``pixels/endoscope`` →
-``observation.images.endoscope`` (what ``collect --camera`` records). Success is the env's
+``observation.images.endoscope`` (what ``collect --camera`` records); without them, a policy given by
+``--policy.path`` that reads the endoscope image brings its own image size. Success is the env's
 ``info["is_success"]``, which lerobot-eval reads.
 The proficiency metrics are ``surrol-data eval --policy lerobot:DIR``'s (same env, same seeds policy).
 """
@@ -56,6 +57,28 @@ class LerobotObservation(gym.ObservationWrapper):
         return named
 
 
+def policy_image_size(args=None) -> tuple[int, int] | None:
+    """(height, width) of the endoscope image the policy of ``--policy.path`` (a local folder) reads, or None.
+
+    LeRobot builds the env before the policy and gives the env's config no view of it; without this, a camera
+    policy evaluated without ``--env.camera_width/height`` fails deep in lerobot with
+    ``KeyError: 'observation.images.endoscope'``."""
+    import json
+    from pathlib import Path
+
+    from lerobot.configs.parser import get_path_arg
+
+    path = get_path_arg("policy", args)
+    config = Path(path) / "config.json" if path else None
+    if config is None or not config.is_file():
+        return None
+    feature = json.loads(config.read_text()).get("input_features", {}).get(f"{OBS_IMAGES}.{ENV_CAMERA}")
+    if not feature:
+        return None
+    channels, height, width = feature["shape"]
+    return int(height), int(width)
+
+
 @EnvConfig.register_subclass("surrol")
 @dataclass
 class SurrolEnv(EnvConfig):
@@ -74,6 +97,11 @@ class SurrolEnv(EnvConfig):
 
     def __post_init__(self):
         import surrol_data.envs  # noqa: F401  (registers the SurRoL/* ids)
+
+        if self.camera_width <= 0 and self.camera_height <= 0:
+            size = policy_image_size()
+            if size is not None:   # the policy reads the endoscope image: the env renders it at its size
+                self.camera_height, self.camera_width = size
 
         env = gym.make(self.gym_id)
         try:
