@@ -119,6 +119,11 @@ class TrainingApp:
         self._build_panel()
         self._build_controls()
         self._build_hud()
+        # What a session imports on first play (the recorder; lerobot and torch behind it) is imported now, as the
+        # window opens: an import holds the interpreter lock and would stall the window's frames after play.
+        import lerobot.datasets.lerobot_dataset  # noqa: F401
+
+        import surrol_data.datasets.recorder  # noqa: F401
 
     # ------------------------------------------------------------------ layout
     def _setup_view(self) -> None:

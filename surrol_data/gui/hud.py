@@ -80,6 +80,8 @@ class Hud:
         return self.limit_steps is not None and self.steps >= self.limit_steps and not self.success
 
     def lines(self) -> list[str]:
+        if self.attempt == 0:   # before play: what the session will be
+            return [f"{self.task}   {device_label(self.device, self.skill)}", "press play to start"]
         limit = "" if self.limit_steps is None else f" / {self.limit_steps * self.period_s:.3g}"
         lines = [f"{self.task}   attempt {self.attempt}   {device_label(self.device, self.skill)}",
                  f"time {self.time_s:5.1f}{limit} s   path {100 * self.path_m:5.1f} cm   "
