@@ -286,6 +286,8 @@ def test_hud_shows_the_keys_and_the_time_limit():
     from surrol_data.gui.hud import Hud
 
     hud = Hud(task="BiPegTransfer", device="keyboard", arms=2, limit_steps=100)
+    assert hud.lines() == ["BiPegTransfer   keyboard", "press play to start"]   # before the first attempt
+    hud.start_attempt()
     keys = hud.key_lines()
     assert keys[0].startswith("left hand: w a s d up left down right   q e toward away   z x roll   c jaw")
     assert keys[1].startswith("right hand: i j k l up left down right   u o toward away")
