@@ -267,6 +267,8 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
             shards: Optional[int] = typer.Option(None, min=1, help="script: record in N shards at once (disjoint "
                                                  "seeds; local worker processes, or SLURM jobs with --launcher "
                                                  "slurm), kept in OUT.shards/, then merged into OUT."),
+            workers: int = typer.Option(1, min=1, help="script: roll the episodes out in N processes while this "
+                                        "one records them, in seed order (the same dataset as with 1)."),
             launcher: Launcher = typer.Option(Launcher.local, help="--shards: where the shards run."),
             partition: Optional[str] = _partition_option(),
             account: Optional[str] = _account_option(),
@@ -282,6 +284,8 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
     if (policy is not None) != (source is Source.intervene):
         _fail("--policy names the policy of --source intervene (and only of it)" if policy is not None else
               "--source intervene needs --policy: a checkpoint (.pt), lerobot:DIR or 'oracle'")
+    if workers > 1 and (source is not Source.script or shards is not None or launcher is Launcher.slurm):
+        _fail("--workers runs the scripted oracle's episodes in parallel: it needs --source script, without --shards")
     if shards is not None or launcher is Launcher.slurm:   # it says these need --source script
         _collect_shards(source, task, episodes, out, shards, launcher, seed, append, command,
                         _slurm_options(partition, account, time_min, mem_gb, cpus, sbatch),
@@ -316,7 +320,8 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
     with _disk_full_is_an_error(out):
         try:
             result = collect_script(task, episodes, out, seed=seed, max_steps=max_steps, keep_failures=keep_failures,
-                                    append=append, command=command, camera_size=size, speed=speed)
+                                    append=append, command=command, camera_size=size, speed=speed,
+                                    workers=workers)
         except (ValueError, FileExistsError, RuntimeError) as e:
             if _disk_full(e):
                 raise

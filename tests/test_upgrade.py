@@ -134,3 +134,26 @@ def test_upgraded_needle_pick_validates_against_its_env_and_takes_new_episodes(t
     reader = DatasetReader(root)
     assert len(reader) == 3 and len(reader.trajectory(2)) == 5
     assert validate_dataset(root, check_reward=False) == []
+
+
+def test_upgrade_seals_every_episode_as_the_writer_does(camera):
+    # The writer seals each episode's provenance and video segment; an upgraded dataset must be sealed the same way,
+    # so an edit after the upgrade is caught as it is in a freshly recorded one.
+    from surrol_data.datasets.info import read_sidecar
+    from surrol_data.datasets.schema import PROVENANCE_SEAL
+
+    _upgrade(camera)
+    assert read_sidecar(camera).get("seals") == 1
+    meta = _old_episodes(camera)
+    assert PROVENANCE_SEAL in meta.column_names and "seal/observation.images.front" in meta.column_names
+    assert None not in meta.column(PROVENANCE_SEAL).to_pylist()
+    assert validate_dataset(camera, check_reward=False, check_lerobot=False) == []
+
+    path = sorted((camera / "meta" / "episodes").glob("chunk-*/file-*.parquet"))[0]
+    table = pq.read_table(path)
+    skill = table.column("provenance/skill").to_pylist()
+    table = table.set_column(table.column_names.index("provenance/skill"), "provenance/skill",
+                             pa.array(["novice" if s != "novice" else "expert" for s in skill], pa.string()))
+    pq.write_table(table, path)
+    problems = validate_dataset(camera, check_reward=False, check_lerobot=False)
+    assert any(p.check == "integrity" and "episode" in p.message for p in problems), problems

@@ -102,6 +102,14 @@ class PacedOracle:
         return arms.reshape(-1)
 
 
+def _rollouts_here(env: gym.Env, policy, seeds):
+    """(seed, trajectory, seconds) of each seed, rolled out in this process."""
+    for s in seeds:
+        t0 = time.perf_counter()
+        traj = rollout(env, policy, s)
+        yield s, traj, time.perf_counter() - t0
+
+
 # The script pace that matches the paper's script demos (NeedlePick, 150-step horizon: 109 steps, 11.7 cm).
 SCRIPT_SPEED_MATCHED = 0.3
 
@@ -110,7 +118,7 @@ def collect_script(task: str, episodes: int, out: str | Path, seed: int | None =
                    keep_failures: bool = False, append: bool = False, max_attempts: int | None = None,
                    progress: bool = True, command: str | None = None,
                    camera_size: tuple[int, int] | None = None, speed: float = 1.0,
-                   seed_stride: int = 1) -> CollectResult:
+                   seed_stride: int = 1, workers: int = 1) -> CollectResult:
     """Record ``episodes`` oracle episodes of ``task`` into the LeRobot dataset at ``out``.
 
     Attempt ``i`` uses seed ``seed + i * seed_stride`` (``seed=None``: 0, or with ``append`` the seed after the
@@ -119,11 +127,15 @@ def collect_script(task: str, episodes: int, out: str | Path, seed: int | None =
     generator's rule), or always with ``keep_failures``. Gives up after ``max_attempts`` (default 3×).
     ``camera_size`` = (width, height) also records the endoscope view as video.
     ``speed`` < 1 runs the oracle at that fraction of its pace (:class:`PacedOracle`; recorded in provenance).
+    ``workers`` > 1 rolls the episodes out in that many processes while this one records them, in the same seed
+    order: the same dataset as ``workers=1`` (:mod:`surrol_data.collect.parallel_rollouts`).
     """
     if episodes <= 0:
         raise ValueError(f"the number of episodes must be positive, got {episodes}")
     if seed_stride < 1:
         raise ValueError(f"the seed stride must be at least 1, got {seed_stride}")
+    if workers < 1:
+        raise ValueError(f"the number of workers must be at least 1, got {workers}")
     seed = first_seed(out, append, seed, "script")
     import surrol_data.envs  # noqa: F401  (registers the ids)
 
@@ -139,12 +151,16 @@ def collect_script(task: str, episodes: int, out: str | Path, seed: int | None =
                                features=features_for(env), append=append, command=command,
                                robot_type=dimension_names(env).robot_type)
     bar = tqdm(total=episodes, desc=f"collect {task_name} (script)", unit="ep", disable=not progress)
+    seeds = (seed + i * seed_stride for i in range(max_attempts))
+    if workers > 1:
+        from surrol_data.collect.parallel_rollouts import oracle_rollouts
+
+        stream = oracle_rollouts(eid, camera_kwargs(camera_size), kwargs, speed, seeds, workers)
+    else:
+        stream = _rollouts_here(env, policy, seeds)
     try:
         with recorder:
-            while result.kept < episodes and result.attempts < max_attempts:
-                s = seed + result.attempts * seed_stride
-                t0 = time.perf_counter()
-                traj = rollout(env, policy, s)
+            for s, traj, duration in stream:
                 result.attempts += 1
                 if not traj.is_success:
                     result.failures += 1
@@ -153,13 +169,16 @@ def collect_script(task: str, episodes: int, out: str | Path, seed: int | None =
                 recorder.record(traj, {
                     "source": "script", "device": "none", "operator_id": "oracle", "skill": "scripted",
                     "operator_simulated": False, "operator_params": "{}", "device_settings": settings,
-                    "seed": s, "duration_s": time.perf_counter() - t0,
+                    "seed": s, "duration_s": duration,
                 })
                 result.kept += 1
                 result.seeds.append(s)
                 bar.update(1)
                 bar.set_postfix(success=f"{result.success_rate:.2f}", refresh=False)
+                if result.kept >= episodes:
+                    break
     finally:
+        stream.close()   # stops the worker processes, if any
         bar.close()
         env.close()
     if result.kept < episodes:

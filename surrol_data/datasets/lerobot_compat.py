@@ -39,6 +39,9 @@ INTERNALS = (
     ("lerobot.datasets.dataset_writer", "DatasetWriter.flush_pending_videos"),
     ("lerobot.datasets.dataset_metadata", "LeRobotDatasetMetadata.save_episode"),
     ("lerobot.datasets.dataset_metadata", "LeRobotDatasetMetadata._close_writer"),
+    ("lerobot.datasets.dataset_metadata", "LeRobotDatasetMetadata._save_episode_metadata"),
+    ("lerobot.datasets.io_utils", "write_info"),
+    ("lerobot.utils.utils", "flatten_dict"),
     ("lerobot.datasets.compute_stats", "aggregate_stats"),
     ("lerobot.datasets.compute_stats", "compute_episode_stats"),
     ("lerobot.datasets.io_utils", "write_stats"),
@@ -127,27 +130,67 @@ def install_fast_save() -> None:
     dataset_writer.embed_images = embed_images_if_any
 
 
-def attach_episode_columns(ds, columns) -> None:
-    """Make ``ds`` write ``columns()`` (a dict) into each episode's ``meta/episodes`` row, flushed per episode.
+def attach_episode_columns(ds, columns, batch: int = 1) -> None:
+    """Make ``ds`` write ``columns()`` (a dict) into each episode's ``meta/episodes`` row.
 
     ``columns(episode_metadata)`` is called inside every ``save_episode``, after lerobot has written the episode's
     videos (``episode_metadata`` says where: ``videos/<key>/*``); it raises to refuse an episode saved without them.
     Call again after each ``resume()`` (a new metadata object).
+
+    ``batch`` = 1: each episode's row is flushed with it, and ``info.json`` / ``stats.json`` are rewritten per
+    episode (lerobot's own behaviour). ``batch`` = N > 1: the rows are written N at a time (one parquet row group per
+    N episodes instead of per episode: each row group repeats ~250 columns' metadata, ~60 KB) and ``info.json`` /
+    ``stats.json`` are written only by :func:`write_episode_totals`, which the caller runs before every close of the
+    files (its checkpoints): between two checkpoints the files on disk are unreadable anyway until their footers are
+    written, and what a kill leaves is rebuilt from the journal.
     """
     meta = ds.meta
     if not hasattr(meta, "_metadata_buffer_size") or not callable(getattr(meta, "save_episode", None)):
         raise LerobotIncompatible(f"lerobot {lerobot_version()}: LeRobotDatasetMetadata has no save_episode / "
                                   "_metadata_buffer_size; surrol_data cannot attach provenance columns")
-    # resume() has no metadata_buffer_size argument and defaults to 10; flush every episode instead, so an
-    # error that skips finalize never leaves info.json ahead of meta/episodes.
-    meta._metadata_buffer_size = 1
+    if batch > 1 and not callable(getattr(meta, "_save_episode_metadata", None)):
+        batch = 1   # lerobot's save_episode is reimplemented below; without the internal it calls, per episode
+    # resume() has no metadata_buffer_size argument and defaults to 10.
+    meta._metadata_buffer_size = batch
     original = meta.save_episode
 
     def save_episode_with_columns(episode_index, episode_length, episode_tasks, episode_stats, episode_metadata):
         return original(episode_index, episode_length, episode_tasks, episode_stats,
                         {**episode_metadata, **columns(episode_metadata)})
 
-    meta.save_episode = save_episode_with_columns
+    def save_episode_batched(episode_index, episode_length, episode_tasks, episode_stats, episode_metadata):
+        # lerobot 0.6.1's LeRobotDatasetMetadata.save_episode, less its per-episode write_info / write_stats
+        from lerobot.utils.utils import flatten_dict
+
+        episode = {"episode_index": episode_index, "tasks": episode_tasks, "length": episode_length,
+                   **episode_metadata, **columns(episode_metadata)}
+        episode.update(flatten_dict({"stats": episode_stats}))
+        meta._save_episode_metadata(episode)
+        meta.info.total_episodes += 1
+        meta.info.total_frames += episode_length
+        meta.info.total_tasks = len(meta.tasks)
+        meta.info.splits = {"train": f"0:{meta.info.total_episodes}"}
+        meta._surrol_pending_stats.append(episode_stats)
+
+    meta._surrol_pending_stats = []
+    meta.save_episode = save_episode_with_columns if batch == 1 else save_episode_batched
+
+
+def write_episode_totals(ds) -> None:
+    """Write ``info.json`` and ``stats.json`` for the episodes saved since the last call (see
+    :func:`attach_episode_columns` with ``batch`` > 1; a no-op otherwise)."""
+    meta = ds.meta
+    pending = getattr(meta, "_surrol_pending_stats", None)
+    if not pending:
+        return
+    from lerobot.datasets.compute_stats import aggregate_stats as _aggregate
+    from lerobot.datasets.io_utils import write_info, write_stats as _write
+
+    everything = [meta.stats, *pending] if meta.stats is not None else list(pending)
+    meta.stats = everything[0] if len(everything) == 1 else _aggregate(everything)
+    pending.clear()
+    write_info(meta.info, meta.root)
+    _write(meta.stats, meta.root)
 
 
 def episode_buffer(frames: dict[str, np.ndarray], T: int, episode_index: int, task: str, fps: int) -> dict:

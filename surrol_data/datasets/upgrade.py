@@ -45,13 +45,19 @@ from surrol_data.datasets.schema import (
     ENV_STATE,
     NEXT_ENV_STATE,
     SCHEMA1_GOAL_KEYS,
+    PROVENANCE_COLUMNS,
+    PROVENANCE_PREFIX,
+    PROVENANCE_SEAL,
     SCHEMA_VERSION,
+    SEAL_PREFIX,
     SIDECAR_PATH,
     content_hash,
     frame_features,
     is_schema1,
     package_version,
+    provenance_seal,
     utc_now_iso,
+    video_seal_column,
 )
 
 _LEROBOT_DEFAULT = ("timestamp", "frame_index", "episode_index", "index", "task_index")
@@ -258,9 +264,10 @@ def _build(root: Path, work: Path, info: dict, report: UpgradeReport) -> None:
                     {"next.truncated": frames["next.truncated"]}, {"next.truncated": user["next.truncated"]})
                 report.frames += rows.num_rows
 
-    per_episode = []
+    per_episode, sealed = [], True
     for path in parquet_files(root, EPISODES_DIR):
-        table = _upgrade_episodes(pq.read_table(path), hashes, truncated_stats)
+        table = _seal_episodes(work, info, _upgrade_episodes(pq.read_table(path), hashes, truncated_stats))
+        sealed = sealed and PROVENANCE_SEAL in table.column_names
         target = work / path.relative_to(root)
         target.parent.mkdir(parents=True, exist_ok=True)
         pq.write_table(table, target)
@@ -270,7 +277,7 @@ def _build(root: Path, work: Path, info: dict, report: UpgradeReport) -> None:
     new_info = {**info, "features": features, "robot_type": report.robot_type}
     (work / INFO_PATH).write_text(json.dumps(new_info, indent=4))
     _upgrade_stats(root, work, per_episode)
-    _upgrade_sidecar(work, side, new_info, report.robot_type)
+    _upgrade_sidecar(work, side, new_info, report.robot_type, sealed)
     from surrol_data.datasets.card import write_dataset_card
 
     write_dataset_card(work)
@@ -327,6 +334,25 @@ def _upgrade_episodes(table: pa.Table, hashes: dict, truncated_stats: dict) -> p
     return pa.table({**{n: columns[n] for n in before}, **stats, **{n: columns[n] for n in after}})
 
 
+def _seal_episodes(work: Path, info: dict, table: pa.Table) -> pa.Table:
+    """``table`` with the seals the writer records (:mod:`surrol_data.datasets.seals`): each episode's provenance (its
+    content hash is new) and its segment of every video (in ``work``, the upgraded copy). A table without every
+    provenance column (a recording older than some of them) is left unsealed, as the writer leaves such a dataset."""
+    from surrol_data.datasets.seals import segment_seal
+
+    table = table.drop_columns([c for c in table.column_names if c.startswith(SEAL_PREFIX)])
+    if any(PROVENANCE_PREFIX + name not in table.column_names for name in PROVENANCE_COLUMNS):
+        return table
+    columns = {name: table.column(PROVENANCE_PREFIX + name).to_pylist() for name in PROVENANCE_COLUMNS}
+    seals = [provenance_seal({name: values[row] for name, values in columns.items()}) for row in range(table.num_rows)]
+    table = table.append_column(PROVENANCE_SEAL, pa.array(seals, pa.string()))
+    for key in (k for k, ft in info["features"].items() if ft["dtype"] == "video"):
+        rows = table.select([c for c in table.column_names if c.startswith(f"videos/{key}/")]).to_pylist()
+        table = table.append_column(video_seal_column(key), pa.array(
+            [segment_seal(work, info["video_path"], key, row) for row in rows], pa.string()))
+    return table
+
+
 def _upgrade_stats(root: Path, work: Path, truncated: list[dict]) -> None:
     path = root / _STATS_PATH
     if not path.exists():
@@ -342,10 +368,13 @@ def _upgrade_stats(root: Path, work: Path, truncated: list[dict]) -> None:
     (work / _STATS_PATH).write_text(json.dumps(stats, indent=4))
 
 
-def _upgrade_sidecar(work: Path, side: dict, info: dict, robot_type: str) -> None:
+def _upgrade_sidecar(work: Path, side: dict, info: dict, robot_type: str, sealed: bool) -> None:
     if not side:
         return
     side = dict(side)
+    side.pop("seals", None)
+    if sealed:
+        side["seals"] = 1  # every episode carries seal/* columns now, as the writer's do
     side["upgrades"] = [*side.get("upgrades", []), {"from_schema": side.get("schema_version", 1),
                                                     "to_schema": SCHEMA_VERSION, "at": utc_now_iso(),
                                                     "package_version": package_version()}]

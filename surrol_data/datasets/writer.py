@@ -30,8 +30,10 @@ Durability — what survives how the process ends:
 * One writer at a time: the recorder holds a lock on the folder (:mod:`surrol_data.datasets.lock`); a
   second writer gets a clear error. A session that records no episode removes the folder it created.
 
-Episode metadata is flushed each episode (``metadata_buffer_size=1``) so an uncaught error that skips
-``finalize`` never leaves info.json ahead of meta/episodes.
+Episode metadata rows, ``info.json`` and ``stats.json`` are written at each checkpoint, ``checkpoint_every``
+episodes at a time (:func:`lerobot_compat.attach_episode_columns` with ``batch``): so info.json is never ahead of
+meta/episodes, and ``meta/episodes`` holds one parquet row group per checkpoint instead of one (~60 KB of column
+metadata) per episode.
 
 Provenance goes into the episodes parquet as ``provenance/<name>`` columns (see
 :mod:`surrol_data.datasets.schema`) by wrapping ``ds.meta.save_episode`` (re-installed after each resume),
@@ -302,6 +304,7 @@ class DatasetWriter:
             with self._hold_signals():
                 if self._ds.has_pending_frames():
                     self._ds.clear_episode_buffer()
+                lerobot_compat.write_episode_totals(self._ds)
                 self._ds.finalize()
                 self._ds = None
                 self._durable = self._total_episodes_on_disk()
@@ -319,7 +322,9 @@ class DatasetWriter:
             self._restore_signal_handlers()
 
     def _prepare_writer(self) -> None:
-        lerobot_compat.attach_episode_columns(self._ds, self._episode_columns)
+        # Rows, info.json and stats.json are written once per checkpoint, not per episode: the journal is what makes
+        # an episode durable before record() returns, and the files are unreadable between checkpoints anyway.
+        lerobot_compat.attach_episode_columns(self._ds, self._episode_columns, batch=self.checkpoint_every)
 
     def _episode_columns(self, episode_metadata: dict) -> dict:
         if self._pending_columns is None:
@@ -447,6 +452,7 @@ class DatasetWriter:
         if self._ds is None:
             raise RuntimeError("DatasetRecorder is not open")
         with self._hold_signals():
+            lerobot_compat.write_episode_totals(self._ds)
             if not lerobot_compat.close_files_and_continue(self._ds):
                 self._ds.finalize()
                 with hub_offline():
