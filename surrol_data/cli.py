@@ -822,6 +822,9 @@ def validate(dataset: Path = typer.Argument(..., help="Dataset folder."),
     if problems:
         console.print(f"{dataset}: {len(problems)} problem(s)")
         raise typer.Exit(code=1)
+    from surrol_data.datasets.validated_cache import dataset_digest, remember_valid
+
+    remember_valid(dataset_digest(dataset))   # every check passed: the commands' own check may skip these bytes
     console.print(f"[green]✓[/] {dataset} is a valid surrol_data dataset")
 
 

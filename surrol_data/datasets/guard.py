@@ -7,7 +7,8 @@
    A *finished* dataset whose files are damaged (bit rot, a bad copy) is refused with the repair command to run:
    reading never modifies what is read. One being written by a live process is refused.
 2. :func:`require_valid`: the cheap checks of :func:`surrol_data.datasets.validate.validate_dataset` (no env,
-   no lerobot import, videos only demuxed); a damaged dataset is refused with the validator's own messages.
+   no lerobot import, videos only demuxed); a damaged dataset is refused with the validator's own messages. A
+   dataset whose bytes already passed them is not checked again (:mod:`validated_cache`: by content digest).
 
 Both return the folder to read: the dataset itself, or the repaired view of a read-only one.
 """
@@ -79,10 +80,16 @@ def require_valid(root: str | Path, notify: Callable[[str], None] = _stderr) -> 
     """:func:`require_dataset_folder`, :func:`ensure_finished`, then the cheap validation checks; DatasetError
     listing every problem found. Returns the folder to read (see :func:`ensure_finished`)."""
     from surrol_data.datasets.validate import validate_dataset
+    from surrol_data.datasets.validated_cache import dataset_digest, known_valid, remember_valid
 
     require_dataset_folder(root)
     target = ensure_finished(root, notify)
+    digest = dataset_digest(target)
+    if known_valid(digest):   # these very bytes passed these very checks before
+        return target
     problems = validate_dataset(target, check_reward=False, check_lerobot=False)
+    if not problems:
+        remember_valid(digest)
     if problems:
         listed = "\n  ".join(str(p) for p in problems)
         raise DatasetError(f"{root} is damaged ({len(problems)} problem(s)); nothing was done:\n  {listed}\n"
