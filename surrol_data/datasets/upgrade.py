@@ -44,10 +44,10 @@ from surrol_data.datasets.reader import (
 from surrol_data.datasets.schema import (
     ENV_STATE,
     NEXT_ENV_STATE,
-    SCHEMA1_GOAL_KEYS,
     PROVENANCE_COLUMNS,
     PROVENANCE_PREFIX,
     PROVENANCE_SEAL,
+    SCHEMA1_GOAL_KEYS,
     SCHEMA_VERSION,
     SEAL_PREFIX,
     SIDECAR_PATH,
@@ -344,13 +344,17 @@ def _seal_episodes(work: Path, info: dict, table: pa.Table) -> pa.Table:
     if any(PROVENANCE_PREFIX + name not in table.column_names for name in PROVENANCE_COLUMNS):
         return table
     columns = {name: table.column(PROVENANCE_PREFIX + name).to_pylist() for name in PROVENANCE_COLUMNS}
-    seals = [provenance_seal({name: values[row] for name, values in columns.items()}) for row in range(table.num_rows)]
-    table = table.append_column(PROVENANCE_SEAL, pa.array(seals, pa.string()))
+    seals = {PROVENANCE_SEAL: pa.array([provenance_seal({name: values[row] for name, values in columns.items()})
+                                        for row in range(table.num_rows)], pa.string())}
     for key in (k for k, ft in info["features"].items() if ft["dtype"] == "video"):
         rows = table.select([c for c in table.column_names if c.startswith(f"videos/{key}/")]).to_pylist()
-        table = table.append_column(video_seal_column(key), pa.array(
-            [segment_seal(work, info["video_path"], key, row) for row in rows], pa.string()))
-    return table
+        seals[video_seal_column(key)] = pa.array([segment_seal(work, info["video_path"], key, row) for row in rows],
+                                                 pa.string())
+    # where the writer puts them: after the provenance columns, before the statistics
+    names = table.column_names
+    at = next((i for i, n in enumerate(names) if n.startswith("stats/")), len(names))
+    return pa.table({**{n: table.column(n) for n in names[:at]}, **seals,
+                     **{n: table.column(n) for n in names[at:]}})
 
 
 def _upgrade_stats(root: Path, work: Path, truncated: list[dict]) -> None:
