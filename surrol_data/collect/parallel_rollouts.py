@@ -1,63 +1,39 @@
-"""Scripted rollouts in worker processes, handed back in seed order: :func:`oracle_rollouts`.
+"""Rollouts in worker processes, handed back in the order they were asked for: :func:`ordered_rollouts`.
 
 ``collect --workers N`` rolls the oracle out in N processes while this process records. The recorder stays the
 only writer (one lock, one journal: the crash guarantee is the recorder's, unchanged), and it receives the
 episodes in exactly the order a single process would produce them — attempt ``i`` is seed ``first + i * stride``
-whichever worker ran it — so the kept episodes, their seeds and their frames are those of ``--workers 1``.
-A worker rolls out a seed with a fresh ``env.reset(seed=...)``, the same call the single process makes.
+whichever worker ran it — so the kept episodes, their seeds and their frames are those of ``--workers 1``
+(each rollout starts from ``env.reset(seed=...)``, the same call the single process makes).
 
 Workers are spawned, not forked: the parent has a PyBullet connection open, which a fork would share.
-At most ``2 * workers`` seeds are in flight, so the rollouts not needed once enough episodes are kept are few
-and are discarded.
+At most ``2 * workers`` rollouts are in flight, so those not needed once enough episodes are kept are few and are
+discarded.
 """
 
 from __future__ import annotations
 
-import time
 from collections import deque
-from collections.abc import Iterator
-
-from surrol_data.datasets.trajectory import Trajectory
-
-_ENV = None
-_POLICY = None
+from collections.abc import Callable, Iterable, Iterator
 
 
-def _start_worker(eid: str, env_kwargs: dict, make_kwargs: dict, speed: float) -> None:
-    global _ENV, _POLICY
-    import surrol_data.envs  # noqa: F401  (registers the ids)
-    from surrol_data.collect.rollout import ORACLE
-    from surrol_data.collect.script_source import PacedOracle, make_env
-
-    _ENV = make_env(eid, env_kwargs, **make_kwargs)
-    _POLICY = ORACLE if speed == 1.0 else PacedOracle(_ENV, speed)
-
-
-def _roll(seed: int) -> tuple[Trajectory, float]:
-    from surrol_data.collect.rollout import rollout
-
-    t0 = time.perf_counter()
-    traj = rollout(_ENV, _POLICY, seed)
-    return traj, time.perf_counter() - t0
-
-
-def oracle_rollouts(eid: str, env_kwargs: dict, make_kwargs: dict, speed: float, seeds: Iterator[int],
-                    workers: int) -> Iterator[tuple[int, Trajectory, float]]:
-    """(seed, trajectory, seconds the rollout took) for each seed of ``seeds``, in order, rolled out by ``workers``
-    spawned processes. Stop iterating whenever enough episodes are kept: the pool is shut down on close."""
+def ordered_rollouts(start: Callable, start_args: tuple, roll: Callable, seeds: Iterable[int],
+                     workers: int) -> Iterator[tuple]:
+    """``(seed, *roll(seed))`` for each seed, in order, computed by ``workers`` spawned processes that each ran
+    ``start(*start_args)`` first (both module-level functions, so a spawned process can import them). Stop iterating
+    whenever enough is done: closing the iterator shuts the processes down."""
     import multiprocessing
     from concurrent.futures import ProcessPoolExecutor
 
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                               initializer=_start_worker, initargs=(eid, env_kwargs, make_kwargs, speed))
+                               initializer=start, initargs=start_args)
     pending: deque = deque()
     try:
         for seed in seeds:
-            pending.append((seed, pool.submit(_roll, seed)))
-            if len(pending) < 2 * workers:
-                continue
-            done_seed, future = pending.popleft()
-            yield done_seed, *future.result()
+            pending.append((seed, pool.submit(roll, seed)))
+            if len(pending) >= 2 * workers:
+                done_seed, future = pending.popleft()
+                yield done_seed, *future.result()
         while pending:
             done_seed, future = pending.popleft()
             yield done_seed, *future.result()

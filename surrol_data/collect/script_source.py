@@ -110,6 +110,23 @@ def _rollouts_here(env: gym.Env, policy, seeds):
         yield s, traj, time.perf_counter() - t0
 
 
+_WORKER: dict = {}   # in a --workers process: its env and policy
+
+
+def _start_worker(eid: str, env_kwargs: dict, make_kwargs: dict, speed: float) -> None:
+    import surrol_data.envs  # noqa: F401  (registers the ids)
+
+    env = make_env(eid, env_kwargs, **make_kwargs)
+    _WORKER.update(env=env, policy=ORACLE if speed == 1.0 else PacedOracle(env, speed))
+
+
+def _roll_in_worker(seed: int) -> tuple:
+    """(trajectory, seconds) of one seed, in a --workers process."""
+    t0 = time.perf_counter()
+    traj = rollout(_WORKER["env"], _WORKER["policy"], seed)
+    return traj, time.perf_counter() - t0
+
+
 # The script pace that matches the paper's script demos (NeedlePick, 150-step horizon: 109 steps, 11.7 cm).
 SCRIPT_SPEED_MATCHED = 0.3
 
@@ -128,7 +145,7 @@ def collect_script(task: str, episodes: int, out: str | Path, seed: int | None =
     ``camera_size`` = (width, height) also records the endoscope view as video.
     ``speed`` < 1 runs the oracle at that fraction of its pace (:class:`PacedOracle`; recorded in provenance).
     ``workers`` > 1 rolls the episodes out in that many processes while this one records them, in the same seed
-    order: the same dataset as ``workers=1`` (:mod:`surrol_data.collect.parallel_rollouts`).
+    order: the same dataset as ``workers=1`` (:func:`surrol_data.collect.parallel_rollouts.ordered_rollouts`).
     """
     if episodes <= 0:
         raise ValueError(f"the number of episodes must be positive, got {episodes}")
@@ -153,9 +170,10 @@ def collect_script(task: str, episodes: int, out: str | Path, seed: int | None =
     bar = tqdm(total=episodes, desc=f"collect {task_name} (script)", unit="ep", disable=not progress)
     seeds = (seed + i * seed_stride for i in range(max_attempts))
     if workers > 1:
-        from surrol_data.collect.parallel_rollouts import oracle_rollouts
+        from surrol_data.collect.parallel_rollouts import ordered_rollouts
 
-        stream = oracle_rollouts(eid, camera_kwargs(camera_size), kwargs, speed, seeds, workers)
+        stream = ordered_rollouts(_start_worker, (eid, camera_kwargs(camera_size), kwargs, speed), _roll_in_worker,
+                                  seeds, workers)
     else:
         stream = _rollouts_here(env, policy, seeds)
     try:
