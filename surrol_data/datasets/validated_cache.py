@@ -29,14 +29,18 @@ def cache_dir() -> Path:
 
 
 def _code_digest() -> bytes:
-    """What the verdict depends on besides the dataset: the checking code (validate, seals, schema, reader)."""
-    here = Path(__file__).resolve().parent
+    """What the verdict depends on besides the dataset: the checking code (every module of this package, whatever
+    validate imports from it) and the versions of the libraries that read the files."""
+    from importlib.metadata import PackageNotFoundError, version
+
     h = hashlib.sha256()
-    for name in ("validate.py", "seals.py", "schema.py", "reader.py", "guard.py", "video.py"):
+    for path in sorted(Path(__file__).resolve().parent.glob("*.py")):
+        h.update(path.name.encode() + b"\0" + path.read_bytes())
+    for package in ("pyarrow", "numpy", "av"):
         try:
-            h.update((here / name).read_bytes())
-        except OSError:
-            h.update(name.encode())
+            h.update(f"{package}={version(package)}".encode())
+        except PackageNotFoundError:
+            h.update(package.encode())
     return h.digest()
 
 
