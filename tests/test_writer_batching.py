@@ -28,7 +28,7 @@ def test_episode_rows_are_written_a_checkpoint_at_a_time(tmp_path):
               for g in range(pq.ParquetFile(p).metadata.num_row_groups)]
     assert sorted(groups) == [2, 5, 5], groups   # one row group per checkpoint (today: one per episode)
     size = sum(p.stat().st_size for p in files)
-    assert size / 12 < 25_000, f"{size / 12:.0f} bytes of meta/episodes per episode"
+    assert size / 12 < 40_000, f"{size / 12:.0f} bytes of meta/episodes per episode"   # one footer per checkpoint
     info = json.loads((root / "meta" / "info.json").read_text())
     assert info["total_episodes"] == 12 and info["total_frames"] == 12 * 8
     assert validate_dataset(root, check_reward=False) == []   # stats.json and lerobot's own load agree
