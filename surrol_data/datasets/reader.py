@@ -187,6 +187,9 @@ class DatasetReader:
         self.root = Path(root)
         self.info: dict = load_info(self.root)
         if not parquet_files(self.root, EPISODES_DIR):
+            # A recording killed before its first checkpoint leaves its episode rows unwritten (they are written a
+            # checkpoint at a time) and a data file without a footer: that is a dataset to repair, not an empty one.
+            _check_readable(self.root)
             if int(self.info.get("total_episodes", 0)) > 0:
                 raise DatasetError(f"{self.root}: info.json lists {self.info['total_episodes']} episodes but "
                                    f"{EPISODES_DIR}/ has no parquet file; the recording was interrupted before "
