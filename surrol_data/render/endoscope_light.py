@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 
-from panda3d.core import AmbientLight, NodePath, PerspectiveLens, Point3, Spotlight, Vec3
+from panda3d.core import AmbientLight, DepthWriteAttrib, NodePath, PerspectiveLens, Point3, RenderState, Spotlight, Vec3
 
 CONE_DEG = 100.0
 SPOT_EXPONENT = 2.0
@@ -41,6 +41,8 @@ LIGHT_COLOUR = (1.0, 0.97, 0.92)   # white LED / xenon, slightly warm
 SHADOW_LIGHT_OFFSET_M = (0.07, 0.05)
 SHADOW_LIGHT_SHARE = 0.55
 SHADOW_CONE_DEG = 90.0
+# A node tagged SHADOW_TAG = NO_SHADOW casts no shadow: the shadow light's camera draws it without writing depth.
+SHADOW_TAG, NO_SHADOW = "casts_shadow", "no"
 SHADOW_MAP_SIZE = 1024   # default; cameras pass about twice their image size (the cone is wider than the view)
 
 
@@ -67,6 +69,8 @@ class EndoscopeLight:
     def __init__(self, scene: NodePath, shadows: bool = True, shadow_map_size: int = SHADOW_MAP_SIZE):
         self.spot = _spot("endoscope_light", CONE_DEG, SPOT_EXPONENT)
         self.shadow = _spot("shadow_light", SHADOW_CONE_DEG, 1.0)
+        self.shadow.set_tag_state_key(SHADOW_TAG)
+        self.shadow.set_tag_state(NO_SHADOW, RenderState.make(DepthWriteAttrib.make(DepthWriteAttrib.M_off), 1000))
         if shadows:
             self.shadow.set_shadow_caster(True, shadow_map_size, shadow_map_size)
         self._distance = WORKING_DISTANCE_M

@@ -32,6 +32,7 @@ from panda3d.core import (
 
 from surrol_data.envs.physics import pb  # physics imports pybullet quietly
 from surrol_data.render import body_shapes, materials, shapes
+from surrol_data.render.endoscope_light import NO_SHADOW, SHADOW_TAG
 
 SEGMENTATION_TAG = "pybullet_body"
 _MESH_KINDS = {pb.GEOM_BOX, pb.GEOM_SPHERE, pb.GEOM_CYLINDER, pb.GEOM_CAPSULE, pb.GEOM_MESH}
@@ -61,6 +62,10 @@ def _geom_node(name: str, mesh: shapes.Mesh) -> GeomNode:
     node = GeomNode(name)
     node.add_geom(geom)
     return node
+
+
+def _has_matter(client, body: int) -> bool:
+    return any(client.getCollisionShapeData(body, link) for link in range(-1, client.getNumJoints(body)))
 
 
 class SceneMirror:
@@ -101,6 +106,10 @@ class SceneMirror:
     def _build_body(self, body: int, visuals: tuple) -> tuple[NodePath, dict[int, NodePath]]:
         node = self.root.attach_new_node(f"body{body}")
         node.set_tag(SEGMENTATION_TAG, str(body))
+        if not _has_matter(self.client, body):
+            # A body with no collision shape is a cue drawn for the eye (the goal marker), not a thing in the
+            # cavity: a shadow of it would show something that is not there.
+            node.set_tag(SHADOW_TAG, NO_SHADOW)
         links: dict[int, NodePath] = {}
         for shape in visuals:
             link, kind, dims, filename = shape[1], shape[2], shape[3], shape[4]
