@@ -65,7 +65,14 @@ def _geom_node(name: str, mesh: shapes.Mesh) -> GeomNode:
 
 
 def _has_matter(client, body: int) -> bool:
-    return any(client.getCollisionShapeData(body, link) for link in range(-1, client.getNumJoints(body)))
+    """Whether any link of ``body`` has a collision shape (PyBullet raises for some links that have none)."""
+    for link in range(-1, client.getNumJoints(body)):
+        try:
+            if client.getCollisionShapeData(body, link):
+                return True
+        except pb.error:
+            continue
+    return False
 
 
 class SceneMirror:
