@@ -71,7 +71,10 @@ def test_spotlight_makes_the_centre_brighter_than_the_periphery(task_views, task
     assert centre.sum() > 100 and periphery.sum() > 1000
 
     def ratio(img):
-        lum = luminance(img.rgb)
+        # In linear light: Panda3D's image is gamma-encoded as a camera's is (phong_shader), so its pixel values
+        # are decoded first; TinyRenderer's (albedo × Lambert) are decoded the same way, so that both ratios are
+        # over the same linear albedos and the quotient is the light's falloff.
+        lum = luminance(255.0 * (img.rgb / 255.0) ** 2.2)
         return lum[centre].mean() / lum[periphery].mean()
 
     assert ratio(panda) > SPOTLIGHT_MARGIN * ratio(tiny), (ratio(panda), ratio(tiny))

@@ -64,17 +64,6 @@ def _geom_node(name: str, mesh: shapes.Mesh) -> GeomNode:
     return node
 
 
-def _has_matter(client, body: int) -> bool:
-    """Whether any link of ``body`` has a collision shape (PyBullet raises for some links that have none)."""
-    for link in range(-1, client.getNumJoints(body)):
-        try:
-            if client.getCollisionShapeData(body, link):
-                return True
-        except pb.error:
-            continue
-    return False
-
-
 class SceneMirror:
     """Mirrors the bodies of PyBullet ``client`` under ``parent`` (call :meth:`sync` before each frame)."""
 
@@ -113,9 +102,9 @@ class SceneMirror:
     def _build_body(self, body: int, visuals: tuple) -> tuple[NodePath, dict[int, NodePath]]:
         node = self.root.attach_new_node(f"body{body}")
         node.set_tag(SEGMENTATION_TAG, str(body))
-        if not _has_matter(self.client, body):
-            # A body with no collision shape is a cue drawn for the eye (the goal marker), not a thing in the
-            # cavity: a shadow of it would show something that is not there.
+        if visuals and all(float(shape[7][3]) < 0.999 for shape in visuals):
+            # A translucent body is a cue drawn for the eye (the goal marker), not a thing in the cavity: a shadow
+            # of it would show something that is not there.
             node.set_tag(SHADOW_TAG, NO_SHADOW)
         links: dict[int, NodePath] = {}
         for shape in visuals:
