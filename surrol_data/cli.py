@@ -744,14 +744,19 @@ def _serve_web(items, rcms, web_port: int, open_browser: bool, scene: bool = Tru
 
     rec = rr.RecordingStream(APPLICATION_ID)
     url = rec.serve_grpc(grpc_port=free_port())
+    # The viewer's port is taken first (the data can take seconds per episode to replay); the browser opens and
+    # the URL is printed once the data is in the server.
+    rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=url)
     log_trajectories(rec, items, rcm_positions=rcms, scene=scene)
     rec.flush()
-    rr.serve_web_viewer(web_port=web_port, open_browser=open_browser, connect_to=url)
     if not wait_for_http(web_port):
         _fail(f"Rerun's web viewer did not answer on port {web_port}; try another --web-port")
-    # The viewer's page alone connects to nothing (Rerun connects it only in the browser it opens itself): the
-    # printed address carries the data server's URL.
+    # The viewer's page alone connects to nothing: the address carries the data server's URL.
     page = f"http://localhost:{web_port}/?url={quote(url, safe='')}"
+    if open_browser:
+        import webbrowser
+
+        webbrowser.open(page)
     console.print(f"Rerun web viewer at {page} (data from {url}); Ctrl-C stops it", highlight=False, soft_wrap=True)
     try:
         while True:
