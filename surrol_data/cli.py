@@ -679,8 +679,11 @@ def view(dataset: Path = typer.Argument(..., help="Dataset folder."),
          web: bool = typer.Option(False, help="Serve the recording in Rerun's web viewer (until Ctrl-C)."),
          web_port: Optional[int] = typer.Option(None, min=1, max=65535, help="Port of the web viewer with --web "
                                                 "(default: a free one)."),
-         open_browser: bool = typer.Option(True, help="With --web: open the viewer in the default browser.")):
-    """Rerun view of dataset episodes: instruments, tool paths, objects, goal, actions, jaw, clutch, camera, provenance."""
+         open_browser: bool = typer.Option(True, help="With --web: open the viewer in the default browser."),
+         scene: bool = typer.Option(True, help="Replay each episode to show the scene's bodies and the instruments "
+                                                "as moving meshes (a few seconds per episode).")):
+    """Rerun view of dataset episodes: scene and instruments, tool paths, objects, goal, actions, jaw, clutch, camera,
+    provenance."""
     from surrol_data.datasets.info import read_sidecar
     from surrol_data.datasets.reader import DatasetError, DatasetReader
     from surrol_data.viz.instrument import psm_rcm_positions
@@ -714,20 +717,24 @@ def view(dataset: Path = typer.Argument(..., help="Dataset folder."),
             items.append((label, reader.trajectory(ep, images=True),
                           {k: row[k] for k in row if not str(k).startswith("stats")}))
     rcms = psm_rcm_positions(read_sidecar(dataset).get("env_id", ""))
+    unknown = [prov.get(k) for _, _, prov in items for k in ("env_id", "seed")]
+    if scene and any(v is None or v != v for v in unknown):   # (v != v: a NaN from the episodes table)
+        _note("episodes without env_id and seed in their provenance cannot be replayed: showing them without the scene")
+        scene = False
     if out is not None:
         from surrol_data.viz.rerun_log import save_rrd
 
         with _working(f"writing {out} ..."):
-            written = save_rrd(out, items, rcm_positions=rcms)
+            written = save_rrd(out, items, rcm_positions=rcms, scene=scene)
         from surrol_data.viz.open_command import rerun_open_command
 
         console.print(f"wrote {written}; open it with: {rerun_open_command(out)}", highlight=False, markup=False,
                       soft_wrap=True)  # no line break inside the command
     if web:
-        _serve_web(items, rcms, web_port, open_browser)
+        _serve_web(items, rcms, web_port, open_browser, scene)
 
 
-def _serve_web(items, rcms, web_port: int, open_browser: bool) -> None:
+def _serve_web(items, rcms, web_port: int, open_browser: bool, scene: bool = True) -> None:
     """Serve the episodes from this process: a gRPC server holds the recording, the web viewer reads it.
 
     Both listen on ports free a moment before (not Rerun's fixed 9876, where another viewer's server would hand
@@ -742,14 +749,19 @@ def _serve_web(items, rcms, web_port: int, open_browser: bool) -> None:
 
     rec = rr.RecordingStream(APPLICATION_ID)
     url = rec.serve_grpc(grpc_port=free_port())
-    log_trajectories(rec, items, rcm_positions=rcms)
+    # The viewer's port is taken first (the data can take seconds per episode to replay); the browser opens and
+    # the URL is printed once the data is in the server.
+    rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=url)
+    log_trajectories(rec, items, rcm_positions=rcms, scene=scene)
     rec.flush()
-    rr.serve_web_viewer(web_port=web_port, open_browser=open_browser, connect_to=url)
     if not wait_for_http(web_port):
         _fail(f"Rerun's web viewer did not answer on port {web_port}; try another --web-port")
-    # The viewer's page alone connects to nothing (Rerun connects it only in the browser it opens itself): the
-    # printed address carries the data server's URL.
+    # The viewer's page alone connects to nothing: the address carries the data server's URL.
     page = f"http://localhost:{web_port}/?url={quote(url, safe='')}"
+    if open_browser:
+        import webbrowser
+
+        webbrowser.open(page)
     console.print(f"Rerun web viewer at {page} (data from {url}); Ctrl-C stops it", highlight=False, soft_wrap=True)
     try:
         while True:

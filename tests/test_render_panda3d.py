@@ -18,9 +18,11 @@ from surrol_data.render.display import unavailable_reason
 pytestmark = pytest.mark.skipif(unavailable_reason() is not None, reason=str(unavailable_reason()))
 
 SIZE = (128, 128)
-# Centre/periphery brightness of the spotlit image over TinyRenderer's (whose light is uniform) on the same
-# scene: at least this. Measured 1.7–2.0 on the ten tasks; a uniform light gives 1.
-SPOTLIGHT_MARGIN = 1.4
+# Centre/periphery brightness (linear light) of the spotlit image over TinyRenderer's (whose light is uniform) on
+# the same scene: at least this; a uniform light gives 1. Measured 1.24 (PegBoard) to over 1.4 on the fifteen tasks
+# with the cos² cone and the shadow light aimed at the centre (with cos⁴ and no shadow light it was 1.7–2.0, and
+# the table round the board read as black void).
+SPOTLIGHT_MARGIN = 1.15
 SEGMENTATION_AGREEMENT = 0.94     # pixels with equal ids (edges differ by rasterisation); measured ≥ 0.955
 
 
@@ -71,7 +73,10 @@ def test_spotlight_makes_the_centre_brighter_than_the_periphery(task_views, task
     assert centre.sum() > 100 and periphery.sum() > 1000
 
     def ratio(img):
-        lum = luminance(img.rgb)
+        # In linear light: Panda3D's image is gamma-encoded as a camera's is (phong_shader), so its pixel values
+        # are decoded first; TinyRenderer's (albedo × Lambert) are decoded the same way, so that both ratios are
+        # over the same linear albedos and the quotient is the light's falloff.
+        lum = luminance(255.0 * (img.rgb / 255.0) ** 2.2)
         return lum[centre].mean() / lum[periphery].mean()
 
     assert ratio(panda) > SPOTLIGHT_MARGIN * ratio(tiny), (ratio(panda), ratio(tiny))
@@ -121,8 +126,10 @@ def test_the_raised_tool_casts_a_shadow(raised_tool_scene):
     assert tool.sum() > 50, "the tool must be in view"
     near_tool = np.zeros_like(tool)
     ys, xs = np.nonzero(tool)
-    for dy in range(-6, 7):
-        for dx in range(-6, 7):
+    # The shadow light is 7 cm off the lens (render/endoscope_light.py): the shadow of a tool 2 cm up falls a few
+    # millimetres beside it, up to ~16 px here.
+    for dy in range(-16, 17):
+        for dx in range(-16, 17):
             near_tool[np.clip(ys + dy, 0, 255), np.clip(xs + dx, 0, 255)] = True
     shadow = (darker > 8) & ~tool & near_tool
     assert shadow.sum() >= 10, shadow.sum()

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 from surrol_data.envs.physics import pb  # physics imports pybullet quietly
 
-from surrol_data.envs import physics
+from surrol_data.envs import instrument_geometry, physics
 from surrol_data.envs.psm import matrix_to_quat
 from surrol_data.envs.units import SCALING
 
@@ -151,10 +151,10 @@ def needle_spec(client, visual: bool = True) -> dict:
     col = client.createCollisionShapeArray([pb.GEOM_CAPSULE] * n, radii=[r] * n, lengths=[g.length] * n,
                                            collisionFramePositions=g.positions,
                                            collisionFrameOrientations=g.orientations)
-    vis = client.createVisualShapeArray([pb.GEOM_CAPSULE] * n, radii=[r] * n, lengths=[g.length] * n,
-                                        visualFramePositions=g.positions,
-                                        visualFrameOrientations=g.orientations,
-                                        rgbaColors=[NEEDLE_COLOUR] * n) if visual else -1
+    # The look is a smooth tapered arc (instrument_geometry); the collision keeps its few capsules.
+    vis = instrument_geometry.visual_shape_array(
+        client, instrument_geometry.needle_visual_parts(NEEDLE_RADIUS, NEEDLE_WIRE_RADIUS, NEEDLE_COLOUR),
+        SCALING) if visual else -1
     # The centre of mass sits on the symmetry axis at 2R/π from the arc centre; PyBullet reports the base
     # pose at the centre of mass, so use set_needle_pose/needle_pose to speak in needle-frame terms.
     return dict(baseMass=NEEDLE_MASS, baseCollisionShapeIndex=col, baseVisualShapeIndex=vis,

@@ -16,6 +16,7 @@ from operator import mul as _mul
 import numpy as np
 from surrol_data.envs.physics import pb  # physics imports pybullet quietly
 
+from surrol_data.envs import instrument_geometry
 from surrol_data.envs import kinematics as kin
 from surrol_data.envs import physics
 from surrol_data.envs.shapes import convex_box
@@ -32,11 +33,8 @@ EEF_LINK = 5
 # Joint value of each jaw = sign × jaw angle / 2: the +x blade opens towards +x (a negative rotation about z).
 _JAW_SIGNS = (-1.0, +1.0)
 
-_SHAFT_COLOUR = (0.55, 0.55, 0.6, 1.0)
 _SHAFT_RADIUS_M = 0.004
 _SHAFT_COLLISION_LENGTH_M = 0.06
-_WRIST_COLOUR = (0.3, 0.3, 0.35, 1.0)
-_JAW_COLOUR = (0.2, 0.2, 0.22, 1.0)
 
 _MOVING_JOINTS = ARM_JOINTS + JAW_JOINTS
 _HELD_REVOLUTE = (0, 1, 3, 4, 5)         # the revolute joints that turn the wrist-yaw link (what grasps hold on to)
@@ -136,11 +134,10 @@ class Psm:
             masses.append(physics.PSM_LINK_MASS)
             cols.append(-1)
             viss.append(-1)
-        # Visuals: the shaft hangs on the roll link (frame 4 sits at the shaft end; the shaft runs back along −z).
-        shaft_len = 0.40 * S
-        vis_shape = c.createVisualShape if self.visual else (lambda *a, **k: -1)
-        viss[3] = vis_shape(pb.GEOM_CYLINDER, radius=0.004 * S, length=shaft_len,
-                                      visualFramePosition=[0, 0, -shaft_len / 2], rgbaColor=_SHAFT_COLOUR)
+        # Visuals: the EndoWrist of instrument_geometry (shaft, clevis, wrist, blades), one shape array per link.
+        if self.visual:
+            for link, parts in instrument_geometry.tool_link_parts(kin.WRIST_LENGTH).items():
+                viss[link] = instrument_geometry.visual_shape_array(c, parts, S)
         # The shaft collides too (the reference's tool-roll link has a collision mesh): an 8 mm capsule whose lower
         # cap ends at the wrist, so a tool swept sideways stops on a tray wall or a peg instead of passing through.
         # Only its lowest 6 cm can reach anything on the table (the peg tops, the highest things there, are
@@ -155,15 +152,12 @@ class Psm:
         cols[4] = c.createCollisionShape(pb.GEOM_CAPSULE, radius=0.0025 * S, height=kin.WRIST_LENGTH * S * 0.6,
                                          collisionFramePosition=[kin.WRIST_LENGTH * S / 2, 0, 0],
                                          collisionFrameOrientation=wrist_q)
-        viss[4] = vis_shape(pb.GEOM_CAPSULE, radius=0.0025 * S, length=kin.WRIST_LENGTH * S,
-                                      visualFramePosition=[kin.WRIST_LENGTH * S / 2, 0, 0],
-                                      visualFrameOrientation=wrist_q, rgbaColor=_WRIST_COLOUR)
         # Jaws: revolute about the wrist-yaw axis (z of frame 6), blades along +y, opening along ±x.
         for sign in (+1.0, -1.0):
             centre = np.array([sign * _JAW_HALF[0], _JAW_HALF[1], 0.0]) * S
             cols.append(convex_box(c, _JAW_HALF * S, centre))
-            viss.append(vis_shape(pb.GEOM_BOX, halfExtents=(_JAW_HALF * S).tolist(),
-                                            visualFramePosition=centre.tolist(), rgbaColor=_JAW_COLOUR))
+            viss.append(instrument_geometry.visual_shape_array(c, instrument_geometry.blade_parts(sign), S)
+                        if self.visual else -1)
             positions.append([0, 0, 0])
             orientations.append([0, 0, 0, 1])
             parents.append(6)
@@ -181,7 +175,8 @@ class Psm:
         viss.append(-1)
 
         n = len(masses)
-        base_vis = vis_shape(pb.GEOM_SPHERE, radius=0.004 * S, rgbaColor=(0.9, 0.6, 0.1, 1.0))
+        base_vis = c.createVisualShape(pb.GEOM_SPHERE, radius=0.004 * S, rgbaColor=(0.9, 0.6, 0.1, 1.0)) \
+            if self.visual else -1
         self._spec = dict(
             baseMass=0.0, baseCollisionShapeIndex=-1, baseVisualShapeIndex=base_vis,
             basePosition=(self.world_T_rcm[:3, 3] * S).tolist(),

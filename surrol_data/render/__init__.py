@@ -1,7 +1,9 @@
 """Realistic endoscope rendering with Panda3D: a mirror of any PyBullet scene under the endoscope's light.
 
 * :mod:`~surrol_data.render.scene_mirror` — Panda3D nodes from the scene's visual shapes, poses synced;
-* :mod:`~surrol_data.render.endoscope_light` — spotlight at the scope tip, ambient, shadow map;
+* :mod:`~surrol_data.render.body_shapes` — those shapes as meshes and the links' poses, read from PyBullet
+  without Panda3D (the Rerun scene uses them too);
+* :mod:`~surrol_data.render.endoscope_light` — spotlight at the scope tip, the shadow light beside it, ambient;
 * :mod:`~surrol_data.render.phong_shader` — per-pixel Phong shading; :mod:`~surrol_data.render.materials` — looks;
 * :mod:`~surrol_data.render.stage` — scene + light + camera placement, shared by every view;
 * :mod:`~surrol_data.render.panda_camera` — the offscreen camera behind ``camera_renderer="panda3d"``;

@@ -31,7 +31,8 @@ from panda3d.core import (
 )
 
 from surrol_data.envs.physics import pb  # physics imports pybullet quietly
-from surrol_data.render import materials, shapes
+from surrol_data.render import body_shapes, materials, shapes
+from surrol_data.render.endoscope_light import NO_SHADOW, SHADOW_TAG
 
 SEGMENTATION_TAG = "pybullet_body"
 _MESH_KINDS = {pb.GEOM_BOX, pb.GEOM_SPHERE, pb.GEOM_CYLINDER, pb.GEOM_CAPSULE, pb.GEOM_MESH}
@@ -61,19 +62,6 @@ def _geom_node(name: str, mesh: shapes.Mesh) -> GeomNode:
     node = GeomNode(name)
     node.add_geom(geom)
     return node
-
-
-def _base_inertial_frame(client, body: int):
-    """The base's inertial frame in its link frame: the base's visual frames are relative to its link frame,
-    while ``getBasePositionAndOrientation`` reports the inertial frame.
-
-    Static maximal-coordinate bodies have no inertial frame of their own, and PyBullet then reports
-    uninitialised memory (seen: a 180° turn with a denormal component); such a frame is the identity."""
-    pos, orn = client.getDynamicsInfo(body, -1)[3:5]
-    values = np.abs(np.array([*pos, *orn]))
-    garbage = np.any((values > 0) & (values < 1e-200)) or not np.isfinite(values).all() \
-        or abs(float(np.dot(orn, orn)) - 1.0) > 1e-6
-    return ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)) if garbage else (pos, orn)
 
 
 class SceneMirror:
@@ -106,7 +94,7 @@ class SceneMirror:
             if known is None or known[0] != shapes_now:   # new body, or an id reused by another one
                 if known is not None:
                     known[1].remove_node()
-                inertial_from_link = c.invertTransform(*_base_inertial_frame(c, body))
+                inertial_from_link = c.invertTransform(*body_shapes.base_inertial_frame(c, body))
                 self._bodies[body] = (shapes_now, *self._build_body(body, shapes_now), inertial_from_link)
             self._place(body)
 
@@ -114,6 +102,10 @@ class SceneMirror:
     def _build_body(self, body: int, visuals: tuple) -> tuple[NodePath, dict[int, NodePath]]:
         node = self.root.attach_new_node(f"body{body}")
         node.set_tag(SEGMENTATION_TAG, str(body))
+        if visuals and all(float(shape[7][3]) < 0.999 for shape in visuals):
+            # A translucent body is a cue drawn for the eye (the goal marker), not a thing in the cavity: a shadow
+            # of it would show something that is not there.
+            node.set_tag(SHADOW_TAG, NO_SHADOW)
         links: dict[int, NodePath] = {}
         for shape in visuals:
             link, kind, dims, filename = shape[1], shape[2], shape[3], shape[4]
@@ -146,14 +138,7 @@ class SceneMirror:
         else:
             key = (kind, tuple(round(float(v), 7) for v in dims))
             if key not in self._meshes:
-                if kind == pb.GEOM_BOX:
-                    mesh = shapes.box(dims)
-                elif kind == pb.GEOM_SPHERE:
-                    mesh = shapes.sphere(dims[0])
-                elif kind == pb.GEOM_CYLINDER:
-                    mesh = shapes.cylinder(dims[0], dims[1])
-                else:
-                    mesh = shapes.capsule(dims[0], dims[1])
+                mesh = body_shapes.primitive_mesh(kind, dims)
                 self._meshes[key] = _geom_node(f"shape{kind}", mesh)
             np_ = NodePath(self._meshes[key].make_copy())
             if kind in (pb.GEOM_SPHERE,):
@@ -197,14 +182,6 @@ class SceneMirror:
 
     # ------------------------------------------------------------------ poses
     def _place(self, body: int) -> None:
-        c = self.client
         _, node, links, inertial_from_link = self._bodies[body]
-        if -1 in links:
-            pos, orn = c.getBasePositionAndOrientation(body)
-            pos, orn = c.multiplyTransforms(pos, orn, *inertial_from_link)
-            links[-1].set_transform(_transform(pos, orn))
-        moving = [link for link in links if link >= 0]
-        if moving:
-            states = c.getLinkStates(body, moving, computeForwardKinematics=True)
-            for link, state in zip(moving, states):
-                links[link].set_transform(_transform(state[4], state[5]))
+        for link, pose in body_shapes.link_world_poses(self.client, body, links, inertial_from_link).items():
+            links[link].set_transform(_transform(*pose))

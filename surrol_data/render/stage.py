@@ -58,7 +58,7 @@ class EndoscopeStage:
 
     def close(self) -> None:
         """Drop the scene graph and the light's shadow buffer (which otherwise goes on being drawn)."""
-        self.light.spot.set_shadow_caster(False)
+        self.light.close()
         self.root.remove_node()
 
     def place_camera(self, camera: NodePath) -> None:

@@ -7,8 +7,11 @@ Entity layout, one subtree per episode label ``<L>`` (labels are made path-safe,
                                    the label colour where the policy drove, in OPERATOR_COLOUR where the operator did
     world/<L>/arm<i>/trail         tool-tip path up to the current step (grows over time)
     world/<L>/arm<i>/tip           current tool-tip point
-    world/<L>/arm<i>/instrument    the PSM instrument: shaft through the RCM, wrist, two jaw blades at the
-                                   recorded opening (when the arms' RCM positions are given)
+    world/<L>/arm<i>/instrument    the PSM instrument as lines: shaft through the RCM, wrist, two jaw blades at the
+                                   recorded opening (when the arms' RCM positions are given and no scene is)
+    world/<L>/scene/body<b>/link<k>  with ``scene=True``: the task's bodies and instruments as meshes (logged
+                                   once) moved by a transform per step, from a replay of the episode
+                                   (:mod:`surrol_data.viz.scene_meshes`)
     world/<L>/object               object position (tasks with an object)
     world/<L>/goal                 goal marker(s)
     plots/<L>/action               action channels dx, dy, dz, dyaw, jaw (per arm)
@@ -78,7 +81,8 @@ def log_trajectories(rec_or_path: rr.RecordingStream | str | Path, items: Sequen
                      jpeg_quality: int | None = None,
                      send_blueprint: bool = True,
                      recording_name: str | None = None,
-                     rcm_positions: Sequence[np.ndarray] | None = None) -> rr.RecordingStream | Path:
+                     rcm_positions: Sequence[np.ndarray] | None = None,
+                     scene: bool = False) -> rr.RecordingStream | Path:
     """Log episodes ``(label, trajectory, provenance)`` into one recording, one entity subtree per label.
 
     ``rec_or_path``: a :class:`rerun.RecordingStream` whose sinks the caller owns (returned as is), or
@@ -91,20 +95,22 @@ def log_trajectories(rec_or_path: rr.RecordingStream | str | Path, items: Sequen
     ``jpeg_quality``: JPEG-compress camera frames (1..100) instead of logging raw RGB.
     ``rcm_positions``: the remote centre of motion of each PSM arm (world metres, see
     :func:`surrol_data.viz.instrument.psm_rcm_positions`); with them each arm's instrument is drawn.
+    ``scene``: replay each episode in its env (provenance ``env_id`` and ``seed``) and log the scene's bodies and
+    instruments as meshes with a transform per step (a few seconds per episode).
     """
     if isinstance(rec_or_path, (str, Path)):
         return save_rrd(rec_or_path, items, object_position=object_position, trail_length=trail_length,
                         jpeg_quality=jpeg_quality, send_blueprint=send_blueprint, recording_name=recording_name,
-                        rcm_positions=rcm_positions)
+                        rcm_positions=rcm_positions, scene=scene)
     rec = rec_or_path
-    names = _check_items(items)
+    names = _check_items(items, scene=scene)
     if recording_name:
         rec.send_recording_name(recording_name)
     rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
     for k, (name, (label, traj, provenance)) in enumerate(zip(names, items)):
         _log_episode(rec, name, label, traj, dict(provenance), _PALETTE[k % len(_PALETTE)],
                      object_position=object_position, trail_length=trail_length, jpeg_quality=jpeg_quality,
-                     rcm_positions=rcm_positions)
+                     rcm_positions=rcm_positions, scene=scene)
     if send_blueprint:
         rec.send_blueprint(make_blueprint(items))
     return rec
@@ -119,7 +125,7 @@ def save_rrd(path: str | Path, items: Sequence[Item], *, recording_id: str | Non
     path = Path(path)
     if path.suffix != ".rrd":
         raise ValueError(f"save_rrd: {path} should end in .rrd (the Rerun viewer and CLI expect it)")
-    _check_items(items)   # before the file sink opens, so bad input leaves no empty .rrd behind
+    _check_items(items, scene=kwargs.get("scene", False))   # before the file sink opens: bad input leaves no .rrd
     path.parent.mkdir(parents=True, exist_ok=True)
     rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id or path.stem)
     rec.save(path)
@@ -166,7 +172,7 @@ def make_blueprint(items: Sequence[Item]) -> rrb.Blueprint:
 
 # --------------------------------------------------------------------------------------------------------
 
-def _check_items(items: Sequence[Item]) -> list[str]:
+def _check_items(items: Sequence[Item], scene: bool = False) -> list[str]:
     if not items:
         raise ValueError("no episodes given; pass a list of (label, Trajectory, provenance) tuples")
     names = []
@@ -175,6 +181,10 @@ def _check_items(items: Sequence[Item]) -> list[str]:
             raise TypeError("each item must be (label: str, trajectory: Trajectory, provenance: dict), "
                             f"got {type(item).__name__} of length {len(item) if hasattr(item, '__len__') else '?'}")
         names.append(entity_label(item[0]))
+        missing = [k for k in ("env_id", "seed") if scene and dict(item[2]).get(k) is None]
+        if missing:
+            raise ValueError(f"scene=True replays each episode: its provenance needs {' and '.join(missing)} "
+                             f"({item[0]!r} has none); pass scene=False to log without the scene")
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         raise ValueError(f"episode labels must be unique (after making them path-safe), duplicated: {dup}; "
@@ -196,13 +206,15 @@ def _shade(color: tuple[int, int, int], arm: int) -> tuple[int, int, int]:
 def _log_episode(rec: rr.RecordingStream, name: str, label: str, traj: Trajectory, provenance: dict,
                  color: tuple[int, int, int], *, object_position: slice | None,
                  trail_length: int | None, jpeg_quality: int | None,
-                 rcm_positions: Sequence[np.ndarray] | None = None) -> None:
+                 rcm_positions: Sequence[np.ndarray] | None = None, scene: bool = False) -> None:
     T = len(traj)
     states = _timeline(np.arange(T + 1))       # reset state + one per action
     actions = _timeline(np.arange(T))          # a_t at step t
     results = _timeline(np.arange(1, T + 1))   # reward/success of a_t describe state t+1
 
     tip = np.asarray(traj.tip_position, np.float64)
+    if scene:
+        _log_scene(rec, name, traj, provenance, states)
     for arm in range(tip.shape[1]):
         base = f"world/{name}/arm{arm}"
         path = tip[:, arm, :]
@@ -223,7 +235,7 @@ def _log_episode(rec: rr.RecordingStream, name: str, label: str, traj: Trajector
                                                        labels=[f"{label} arm{arm}"]), static=True)
         rec.send_columns(f"{base}/tip", indexes=states,
                          columns=rr.Points3D.columns(positions=path).partition([1] * (T + 1)))
-        if rcm_positions is not None and arm < len(rcm_positions):
+        if rcm_positions is not None and arm < len(rcm_positions) and not scene:
             _log_instrument(rec, base, traj.observation, arm, rcm_positions[arm], c, states)
 
     obs = np.asarray(traj.observation, np.float64)
@@ -286,6 +298,16 @@ def _log_episode(rec: rr.RecordingStream, name: str, label: str, traj: Trajector
 
 
 _INSTRUMENT_GREY = (150, 150, 160)
+
+
+def _log_scene(rec: rr.RecordingStream, name: str, traj: Trajectory, provenance: dict,
+               states: list[rr.TimeColumn]) -> None:
+    from surrol_data.viz.scene_meshes import log_scene, replay_scene
+
+    replay = replay_scene(str(provenance["env_id"]), int(provenance["seed"]), traj.action, traj.tip_position)
+    log_scene(rec, f"world/{name}/scene", replay, states)
+    if replay.notes:
+        rec.log(f"world/{name}/scene", rr.TextLog(" ".join(replay.notes), level="WARN"), static=True)
 
 
 def _log_instrument(rec: rr.RecordingStream, base: str, observation: np.ndarray, arm: int, rcm: np.ndarray,

@@ -1,0 +1,52 @@
+"""What a PyBullet body looks like, read back from PyBullet without Panda3D: its primitive visual shapes as
+triangle meshes and where each of its links is. The Panda3D mirror (:mod:`~surrol_data.render.scene_mirror`)
+and the Rerun scene (:mod:`surrol_data.viz.scene_meshes`) both build on it, so they draw the same geometry.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from surrol_data.envs.physics import pb  # physics imports pybullet quietly
+from surrol_data.render import shapes
+
+PRIMITIVE_KINDS = {pb.GEOM_BOX, pb.GEOM_SPHERE, pb.GEOM_CYLINDER, pb.GEOM_CAPSULE}
+
+
+def primitive_mesh(kind: int, dims) -> shapes.Mesh:
+    """The mesh of a primitive visual shape from ``getVisualShapeData``'s kind and dimensions (scene units)."""
+    if kind == pb.GEOM_BOX:
+        return shapes.box(dims)
+    if kind == pb.GEOM_SPHERE:
+        return shapes.sphere(dims[0])
+    if kind == pb.GEOM_CYLINDER:
+        return shapes.cylinder(dims[0], dims[1])
+    if kind == pb.GEOM_CAPSULE:
+        return shapes.capsule(dims[0], dims[1])
+    raise ValueError(f"PyBullet geometry type {kind} is not a primitive (box, sphere, cylinder, capsule)")
+
+
+def base_inertial_frame(client, body: int):
+    """The base's inertial frame in its link frame: the base's visual frames are relative to its link frame,
+    while ``getBasePositionAndOrientation`` reports the inertial frame.
+
+    Static maximal-coordinate bodies have no inertial frame of their own, and PyBullet then reports
+    uninitialised memory (seen: a 180° turn with a denormal component); such a frame is the identity."""
+    pos, orn = client.getDynamicsInfo(body, -1)[3:5]
+    values = np.abs(np.array([*pos, *orn]))
+    garbage = np.any((values > 0) & (values < 1e-200)) or not np.isfinite(values).all() \
+        or abs(float(np.dot(orn, orn)) - 1.0) > 1e-6
+    return ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)) if garbage else (pos, orn)
+
+
+def link_world_poses(client, body: int, links, inertial_from_link) -> dict[int, tuple]:
+    """(position, quaternion xyzw) in scene units of each link of ``links`` (-1: the base's link frame)."""
+    poses = {}
+    if -1 in links:
+        pos, orn = client.getBasePositionAndOrientation(body)
+        poses[-1] = client.multiplyTransforms(pos, orn, *inertial_from_link)
+    moving = [link for link in links if link >= 0]
+    if moving:
+        for link, state in zip(moving, client.getLinkStates(body, moving, computeForwardKinematics=True)):
+            poses[link] = (state[4], state[5])
+    return poses
