@@ -14,6 +14,20 @@ import pytest
 
 from surrol_data.render.display import unavailable_reason
 
+_TEST_TASKS = ("hand", "leave")   # the window tasks these tests add to drive a session
+
+
+@pytest.fixture(autouse=True)
+def _no_test_task_outlives_its_test():
+    """Panda3D's task manager is one per process: a driving task a test added would go on sending its keys to the
+    next test's window (and end that session before it did what it was there for)."""
+    yield
+    if "direct.task.TaskManagerGlobal" in sys.modules:
+        from direct.task.TaskManagerGlobal import taskMgr
+
+        for name in _TEST_TASKS:
+            taskMgr.remove(name)
+
 pytestmark = pytest.mark.skipif(unavailable_reason() is not None, reason=str(unavailable_reason()))
 
 SAVE_AT_STEP = 12   # the scripted trainee saves attempt 1 here, mid-task (so it is saved, not a success)
@@ -185,8 +199,10 @@ def test_a_slow_step_does_not_stop_the_window(tmp_path, monkeypatch):
             drawn_during_read.append(len(app.frame_times) - start)
         return read(self)
 
+    give_up = time.monotonic() + 300   # a session that ended early must fail the asserts below, not hang
+
     def leave(task):
-        if app.hud.steps >= 2:
+        if app.hud.steps >= 2 or app.last_error is not None or time.monotonic() > give_up:
             app.request_exit()
         return task.cont
 
