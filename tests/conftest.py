@@ -1,8 +1,11 @@
 """Test-session environment: datasets are local, and the Hugging Face caches stay out of the user's home."""
 
 import os
+import sys
 import tempfile
 from pathlib import Path
+
+import pytest
 
 # Set before any test module imports lerobot / datasets (they read these at import); subprocess tests inherit them.
 os.environ.setdefault("HF_DATASETS_CACHE", str(Path(tempfile.gettempdir()) / "surrol_data_test_hf_cache"))
@@ -11,3 +14,19 @@ os.environ.setdefault("HF_HUB_OFFLINE", "1")
 
 def pytest_configure(config):
     config.addinivalue_line("markers", "browser: needs headless Chromium (apt-get install chromium); skips without it")
+
+
+_WINDOW_TASKS = ("hand", "leave", "scripted-trainee")   # the names the GUI tests give the window tasks that drive a session
+
+
+@pytest.fixture(autouse=True)
+def _no_window_task_outlives_its_test():
+    """Panda3D's task manager is one per process: a driving task a test added (test_gui, test_interventions) would
+    go on sending its keys to the next test's window, in any file, and end that session before it did what it was
+    there for."""
+    yield
+    if "direct.task.TaskManagerGlobal" in sys.modules:
+        from direct.task.TaskManagerGlobal import taskMgr
+
+        for name in _WINDOW_TASKS:
+            taskMgr.remove(name)

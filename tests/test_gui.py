@@ -13,21 +13,6 @@ import time
 import pytest
 
 from surrol_data.render.display import unavailable_reason
-
-_TEST_TASKS = ("hand", "leave")   # the window tasks these tests add to drive a session
-
-
-@pytest.fixture(autouse=True)
-def _no_test_task_outlives_its_test():
-    """Panda3D's task manager is one per process: a driving task a test added would go on sending its keys to the
-    next test's window (and end that session before it did what it was there for)."""
-    yield
-    if "direct.task.TaskManagerGlobal" in sys.modules:
-        from direct.task.TaskManagerGlobal import taskMgr
-
-        for name in _TEST_TASKS:
-            taskMgr.remove(name)
-
 pytestmark = pytest.mark.skipif(unavailable_reason() is not None, reason=str(unavailable_reason()))
 
 SAVE_AT_STEP = 12   # the scripted trainee saves attempt 1 here, mid-task (so it is saved, not a success)
