@@ -18,8 +18,9 @@ each arm's part until the next grasp or release). An arm is taken over, one reac
 * **a collision coming**: the two tips closer than :data:`COLLISION_M` and closing by :data:`CLOSING_M` a frame;
   the arm that moved more towards the other is taken.
 
-The operator model then drives that arm from the phase's first step (:meth:`SimulatedOperator.take_over` with
-``start`` and the phases as its gate: a hand-over step waits until the policy's arm has done its part). The arm is
+The operator model then drives that arm from the phase's first step (after a drop, from the phase where it
+grasps), through :meth:`SimulatedOperator.take_over` with ``start`` and the phases as its gate: a hand-over step
+waits until the policy's arm has done its part. The arm is
 handed back once recovered: after a grasp problem (or a takeover whose part was a grasp) when it has held the object
 for :data:`~surrol_data.collect.operator.supervisor.HOLD_TO_HAND_BACK_S`; otherwise when its part of the phase is
 done or the phase has moved on. After one hand-back of an arm, that arm's next takeover lasts to the end of the
@@ -148,7 +149,8 @@ class ArmSupervisor(Supervisor):
 
     # ------------------------------------------------------------------ driving
     def _take_over(self, t: float, reason: str) -> None:
-        p = self.phases.phase
+        # After a drop the arm grasps again: from the phase in which it grasps (the scene's phase may be past it).
+        p = self.phases.grasp_phase(self.arm) if reason == "drop" else self.phases.phase
         self._driving = True
         self._reason = reason
         self._events.append((t, f"takeover:{reason}"))

@@ -13,9 +13,9 @@ its (grasp or let go). :meth:`PlanPhases.remaining` is how much of its part an a
 supervisor watches that for progress and hands back when it is done. In the last phase only an arm that holds the
 object has a part: bringing it to the goal (the others only stay out of the way).
 
-The phase follows the scene: grasps that match a later phase move to it (a hand-over that was quick may skip the
-phase in which both hold); a grasp state that matches no later phase (the object dropped) goes back to the latest
-earlier phase that matches it, where the grasp is made again.
+The phase follows the scene: grasps that match the next phase move to it (or the one after: a hand-over that was
+quick may skip the phase in which both hold); a grasp state that matches neither (the object dropped) goes back to
+the latest earlier phase that matches it, where the grasp is made again.
 """
 
 from __future__ import annotations
@@ -78,7 +78,10 @@ class PlanPhases:
         holds = tuple(bool(g) for g in np.asarray(grasped).reshape(-1)[:2])
         if holds == self.phase.holds:
             return False
-        later = [k for k in range(self.index + 1, len(self.phases)) if self.phases[k].holds == holds]
+        # Forward only by the next event, or the next two at once (a quick hand-over: one grasps as the other lets
+        # go); nobody holding after PSM2 lifted a block is a drop, not the last phase.
+        later = [k for k in range(self.index + 1, min(self.index + 3, len(self.phases)))
+                 if self.phases[k].holds == holds]
         earlier = [k for k in range(self.index) if self.phases[k].holds == holds]
         if later:
             self.index = later[0]
@@ -88,6 +91,12 @@ class PlanPhases:
             return False           # no phase of the plan looks like this (the object fell where no arm can get it)
         self.moved += 1
         return True
+
+    def grasp_phase(self, arm: int) -> Phase:
+        """The latest phase up to this one whose event is ``arm``'s grasp (where it grasps again after a drop);
+        this phase when there is none."""
+        grasps = [p for p in self.phases[:self.index + 1] if not p.holds[arm] and p.then[arm]]
+        return grasps[-1] if grasps else self.phase
 
     def lets_go_here(self, arm: int) -> bool:
         """The plan has ``arm`` let go of the object at the end of this phase."""
