@@ -34,9 +34,7 @@ import numpy as np
 
 from surrol_data.collect.operator.operator import SimulatedOperator
 from surrol_data.collect.operator.plan_phases import EVENT_M, PlanPhases
-from surrol_data.collect.operator.supervisor import (_LIFT_TO_NOTICE_M, HOLD_TO_HAND_BACK_S, PROGRESS_M,
-                                                     WORKSPACE_SLACK_M, Supervisor)
-from surrol_data.envs.physics import JAW_OPEN_RAD
+from surrol_data.collect.operator.supervisor import PROGRESS_M, WORKSPACE_SLACK_M, Supervisor
 
 COLLISION_M = 0.006       # the two tips this close ...
 CLOSING_M = 0.0005        # ... and this much closer than a frame before: a collision is coming
@@ -114,15 +112,8 @@ class ArmSupervisor(Supervisor):
         lost, self._held = self._held and not held, held
         if lost and not self._others_hold() and not (let_go_here and d_before - EVENT_M <= RELEASE_SLACK_M):
             return "drop"
-        p = phases.phase
-        if not p.holds[self.arm] and p.then[self.arm]:       # its part is a grasp: watch the jaw
-            closed = state[6] < 0.1 * JAW_OPEN_RAD and not held
-            if closed and self._closed_at is None:
-                self._closed_at = state[0:3].copy()
-            elif not closed:
-                self._closed_at = None
-            if self._closed_at is not None and np.linalg.norm(state[0:3] - self._closed_at) > _LIFT_TO_NOTICE_M:
-                return "failed-grasp"
+        if self._grasp_is_due() and self._grasp_failed(state, held):      # its part is a grasp: watch the jaw
+            return "failed-grasp"
         if self._outside_workspace(state[0:3]):
             return "workspace"
         if self._collision_coming():
@@ -148,31 +139,17 @@ class ArmSupervisor(Supervisor):
         return towards[self.arm] >= towards[1 - self.arm]
 
     # ------------------------------------------------------------------ driving
-    def _take_over(self, t: float, reason: str) -> None:
+    def _grasp_is_due(self) -> bool:
+        p = self.phases.phase
+        return not p.holds[self.arm] and p.then[self.arm]
+
+    def _start_driving(self, reason: str) -> None:
         # After a drop the arm grasps again: from the phase in which it grasps (the scene's phase may be past it).
         p = self.phases.grasp_phase(self.arm) if reason == "drop" else self.phases.phase
-        self._driving = True
-        self._reason = reason
-        self._events.append((t, f"takeover:{reason}"))
-        self._taken_distance = self._distance()
         self._taken_moves = self.phases.moved
-        self._held_since = None
-        self._grasp_problem = reason in ("failed-grasp", "drop") or (not p.holds[self.arm] and p.then[self.arm])
         self.operator.take_over(self._obs, self._info, self._pose, start=p.first, gate=self.phases)
 
-    def _recovered(self, t: float) -> bool:
-        if self._hand_backs >= self.max_hand_backs or self._info.get("is_success", 0.0):
-            return False
-        state, info = self._state()
-        if self._outside_workspace(state[0:3]):
-            return False
-        if self._grasp_problem:
-            if not info.get("grasped", False):
-                self._held_since = None
-                return False
-            if self._held_since is None:
-                self._held_since = t
-            return t - self._held_since >= HOLD_TO_HAND_BACK_S
+    def _back_on_course(self) -> bool:
         return self.phases.moved != self._taken_moves or self._distance() <= PROGRESS_M
 
 
