@@ -180,3 +180,24 @@ def test_a_tool_leaving_its_workspace_is_taken_over_alone(tmp_path):
     events = json.loads(reader.episodes.iloc[0]["device_settings"])["supervisor_events"]
     assert events[0][1:] == ["takeover:workspace", 1]
     assert arms[:, 1].any() and not arms[:, 0].any()
+
+
+def test_a_collision_coming_is_blamed_on_the_tool_that_closed_the_gap():
+    from surrol_data.collect.mapping import MappingSettings
+    from surrol_data.collect.operator import SimulatedOperator
+    from surrol_data.collect.operator.arm_supervisor import COLLISION_M, arm_supervisors
+
+    env = _env("BiPegTransfer")
+    try:
+        hands = arm_supervisors([SimulatedOperator(env, "expert", "e1", MappingSettings(), 0, arm=a) for a in (0, 1)])
+        watch = hands[0].watch
+        assert watch is hands[1].watch
+        before = np.array([[0.55, 0.006, 0.7], [0.55, -0.004, 0.7]])          # 10 mm apart
+        watch.tips_before = before
+        watch.tips = before + [[0, -0.004, 0], [0, 0.001, 0]]                 # PSM1 came 4 mm closer, PSM2 1 mm
+        assert np.linalg.norm(watch.tips[0] - watch.tips[1]) < COLLISION_M
+        assert hands[0]._collision_coming() and not hands[1]._collision_coming()
+        watch.tips = before + [[0, -0.002, 0], [0, 0.0, 0]]                   # 8 mm apart: not yet close
+        assert not hands[0]._collision_coming() and not hands[1]._collision_coming()
+    finally:
+        env.close()

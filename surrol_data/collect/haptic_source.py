@@ -21,7 +21,8 @@ the hand's motion while the policy drives moves nothing (as under the clutch) an
 is; the jaw command continues from the executed one. Every frame records who acted and the policy's proposal
 (:func:`surrol_data.datasets.schema.intervention_features`); the episode's provenance names the policy and counts
 the takeovers. ``--device operator`` makes the simulated operator a supervisor
-(:class:`surrol_data.collect.operator.supervisor.Supervisor`).
+(:class:`surrol_data.collect.operator.supervisor.Supervisor`; on a two-arm task one per arm,
+:class:`surrol_data.collect.operator.arm_supervisor.ArmSupervisor`).
 
 Durability: the recorder checkpoints after every episode (human episodes are precious and slow), so a
 SIGKILL loses at most the episode in progress; Ctrl-C, SIGTERM, an unplugged device or any exception
