@@ -21,7 +21,8 @@ the hand's motion while the policy drives moves nothing (as under the clutch) an
 is; the jaw command continues from the executed one. Every frame records who acted and the policy's proposal
 (:func:`surrol_data.datasets.schema.intervention_features`); the episode's provenance names the policy and counts
 the takeovers. ``--device operator`` makes the simulated operator a supervisor
-(:class:`surrol_data.collect.operator.supervisor.Supervisor`).
+(:class:`surrol_data.collect.operator.supervisor.Supervisor`; on a two-arm task one per arm,
+:class:`surrol_data.collect.operator.arm_supervisor.ArmSupervisor`).
 
 Durability: the recorder checkpoints after every episode (human episodes are precious and slow), so a
 SIGKILL loses at most the episode in progress; Ctrl-C, SIGTERM, an unplugged device or any exception
@@ -46,6 +47,7 @@ from surrol_data.collect.devices import BUTTON_TAKEOVER, HUMAN_DEVICES, Device, 
 from surrol_data.collect.devices.trace import mapping_from_dict, trace_path, write_trace
 from surrol_data.collect.mapping import ActionMapper, MappedStep, MappingSettings, frame_defaults, view_to_action
 from surrol_data.collect.operator import SimulatedOperator
+from surrol_data.collect.operator.arm_supervisor import arm_supervisors
 from surrol_data.collect.operator.supervisor import Supervisor
 from surrol_data.collect.rollout import Policy, bind_policy, policy_action, start_episode
 from surrol_data.collect.script_source import features_for, first_seed, make_env
@@ -278,10 +280,11 @@ class _Session:
         self.policy = None if policy is None else bind_policy(env, policy)
         self.policy_info = dict(policy_info or {})
         if self.policy is not None and operators:
-            if len(operators) > 1:
-                raise ValueError(f"the simulated supervisor takes over one-arm tasks; {self.task} has two arms: "
-                                 "supervise it with two human devices (one takeover control per arm)")
-            self.devices = [Supervisor(d) if isinstance(d, SimulatedOperator) else d for d in self.devices]
+            if len(operators) > 1:   # a two-arm task: one watch per hand, each takes its own arm over
+                supervisors = iter(arm_supervisors(operators))
+            else:
+                supervisors = iter([Supervisor(operators[0])])
+            self.devices = [next(supervisors) if isinstance(d, SimulatedOperator) else d for d in self.devices]
         elif len(operators) > 1:   # two simulated hands on a bimanual task: one person
             SimulatedOperator.work_together(operators)
         # ECM tasks: the camera moves by camera_motion_scale × the hand motion and rolls by rotation_scale × the
@@ -541,9 +544,11 @@ class _Session:
             counts = trajectory_interventions(traj)
             device_settings["policy"] = self.policy_info
             device_settings["intervention"] = counts.as_dict()
-            if any(isinstance(d, Supervisor) for d in self.devices):
-                device_settings["supervisor_events"] = [[round(t, 3), e] for d in self.devices
-                                                        if isinstance(d, Supervisor) for t, e in d.events]
+            supervisors = [(arm, d) for arm, d in enumerate(self.devices) if isinstance(d, Supervisor)]
+            if supervisors:   # [seconds, event], and on a two-arm task the arm: [seconds, event, arm], in time order
+                device_settings["supervisor_events"] = sorted(
+                    ([round(t, 3), e] + ([arm] if len(self.devices) > 1 else []) for arm, d in supervisors
+                     for t, e in d.events), key=lambda row: (row[0], row[2:]))
         provenance = {"source": "haptic" if self.policy is None else "intervention", "device": self.devices[0].name,
                       **operator,
                       "device_settings": json.dumps(device_settings, sort_keys=True, default=str),

@@ -213,13 +213,16 @@ def _interventions_table(groups: list[dict]):
     from rich.table import Table
 
     table = Table(title="Interventions by operator", box=box.SIMPLE_HEAD, pad_edge=False, collapse_padding=True,
-                  caption="takeovers = times the operator took an arm over from the policy; operator % = share of "
-                          "frames the operator drove; first = mean time to the first takeover (episodes with one)")
+                  caption="takeovers = times the operator took an arm over from the policy (two arms: PSM1 + PSM2 "
+                          "in brackets); operator % = share of frames the operator drove (any arm); first = mean "
+                          "time to the first takeover (episodes with one)")
     for col in ("source", "device", "skill", "operator", "eps", "takeovers", "per ep", "operator %", "first (s)"):
         table.add_column(col, justify="left" if col in ("source", "device", "skill", "operator") else "right",
                          no_wrap=col != "operator", overflow="fold")
     for g in groups:
-        table.add_row(*(g[k] or "–" for k in GROUP_BY), str(g["episodes"]), str(g["takeovers"]),
+        arms = g.get("arm_takeovers", [])
+        takeovers = str(g["takeovers"]) + (f" ({' + '.join(map(str, arms))})" if len(arms) > 1 else "")
+        table.add_row(*(g[k] or "–" for k in GROUP_BY), str(g["episodes"]), takeovers,
                       _fmt(g["takeovers_per_episode"], 2), _fmt(100 * g["intervention_share"], 0),
                       _fmt(g["time_to_takeover_s"]))
     return table

@@ -24,13 +24,17 @@ class InterventionCounts:
     intervention_frames: int    # frames in which the operator drove at least one arm
     frames: int                 # frames of the episode
     time_to_takeover_s: float   # from the episode's start to the first takeover; nan when the policy never lost it
+    arm_takeovers: tuple[int, ...] = ()             # per arm (PSM1, PSM2): its takeovers ...
+    arm_intervention_frames: tuple[int, ...] = ()   # ... and the frames the operator drove it
 
     @property
     def intervention_share(self) -> float:
         return self.intervention_frames / self.frames if self.frames else math.nan
 
     def as_dict(self) -> dict:
-        return {**asdict(self), "intervention_share": self.intervention_share}
+        d = asdict(self)
+        d.update(arm_takeovers=list(self.arm_takeovers), arm_intervention_frames=list(self.arm_intervention_frames))
+        return {**d, "intervention_share": self.intervention_share}
 
 
 def intervention_counts(intervention: np.ndarray, period_s: float = 1.0 / FPS) -> InterventionCounts:
@@ -39,11 +43,13 @@ def intervention_counts(intervention: np.ndarray, period_s: float = 1.0 / FPS) -
     flags = flags.reshape(len(flags), -1)
     # A takeover is a frame the operator drives an arm that the policy drove the frame before (or the first frame).
     before = np.vstack([np.zeros((1, flags.shape[1]), bool), flags[:-1]])
-    takeovers = int(np.sum(flags & ~before))
+    per_arm = np.sum(flags & ~before, axis=0)
     any_arm = flags.any(axis=1)
     first = int(np.argmax(any_arm)) if any_arm.any() else -1
-    return InterventionCounts(takeovers=takeovers, intervention_frames=int(any_arm.sum()), frames=len(flags),
-                              time_to_takeover_s=first * period_s if first >= 0 else math.nan)
+    return InterventionCounts(takeovers=int(per_arm.sum()), intervention_frames=int(any_arm.sum()), frames=len(flags),
+                              time_to_takeover_s=first * period_s if first >= 0 else math.nan,
+                              arm_takeovers=tuple(int(n) for n in per_arm),
+                              arm_intervention_frames=tuple(int(n) for n in flags.sum(axis=0)))
 
 
 def trajectory_interventions(traj) -> InterventionCounts | None:
@@ -62,19 +68,22 @@ def episode_interventions(reader) -> pd.DataFrame | None:
     for ep, traj in zip(reader.episodes["episode_index"], reader.trajectories(), strict=True):
         rows.append({"episode_index": int(ep), **intervention_counts(traj.flags[INTERVENTION]).as_dict()})
     return pd.DataFrame(rows, columns=["episode_index", "takeovers", "intervention_frames", "frames",
-                                       "time_to_takeover_s", "intervention_share"])
+                                       "time_to_takeover_s", "intervention_share", "arm_takeovers",
+                                       "arm_intervention_frames"])
 
 
 def operator_interventions(episodes: pd.DataFrame, by: list[str]) -> list[dict]:
     """Per group of ``episodes`` (provenance rows joined with :func:`episode_interventions`): episodes, takeovers
-    (total and per episode), the share of frames the operator drove, and the mean time to the first takeover (over
-    the episodes that had one)."""
+    (total, per arm and per episode), the share of frames the operator drove, and the mean time to the first
+    takeover (over the episodes that had one)."""
     groups = []
     for key, rows in episodes.groupby(by, sort=True):
         key = key if isinstance(key, tuple) else (key,)
         first = rows["time_to_takeover_s"].dropna()
+        per_arm = np.sum([list(a) for a in rows["arm_takeovers"]], axis=0) if "arm_takeovers" in rows else []
         groups.append({**dict(zip(by, key, strict=True)), "episodes": int(len(rows)),
                        "takeovers": int(rows["takeovers"].sum()),
+                       "arm_takeovers": [int(n) for n in np.atleast_1d(per_arm)],
                        "takeovers_per_episode": float(rows["takeovers"].mean()),
                        "intervention_share": float(rows["intervention_frames"].sum()
                                                    / max(int(rows["frames"].sum()), 1)),

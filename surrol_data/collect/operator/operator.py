@@ -149,6 +149,7 @@ class SimulatedOperator(Device):
         self._max_speed_mm_s = self.view.position_unit_m * 1000.0 / self._period     # an action of 1 per step
         self._max_angle_speed = self.view.angle_unit_rad / self._period
         self._team: Team | None = None
+        self._gate = None           # a supervised arm of a two-arm task: waits on the scene (see take_over)
         self.skill = skill
         self.operator_id = str(operator_id)
         self.seed = int(seed)
@@ -261,17 +262,23 @@ class SimulatedOperator(Device):
         # The first look at a new scene takes longer than a reaction.
         self._next_decision_s = 2.0 * self._reaction()
 
-    def take_over(self, obs: dict, info: dict, hand_pose: np.ndarray) -> None:
+    def take_over(self, obs: dict, info: dict, hand_pose: np.ndarray, *, start: int | None = None,
+                  gate=None) -> None:
         """Start driving from the scene as it is now: a person supervising a policy takes the stylus over.
 
         ``hand_pose`` is where the hand rests on the stylus (the device frames read so far showed it there), so the
         tool does not jump. The plan is the task's, from the step the scene calls for: holding the object, the step
         after the grasp; otherwise (re-)grasp the object where it now lies; a task without an object, its first step.
         Every draw comes from the episode's key and the number of takeovers so far: the same scene and person give
-        the same takeover."""
+        the same takeover.
+
+        One arm of a two-arm task (the other driven by the policy): ``start`` is the first plan step of the phase the
+        scene is in (:class:`~surrol_data.collect.operator.plan_phases.PlanPhases`), and ``gate`` (an object with
+        ``may_start(operator, step)``, as :class:`Team`) holds a step back until the other arm has done its part."""
         if self._team is not None:
-            raise DeviceError("the simulated supervisor takes over one-arm tasks only (the two hands of one person "
-                              "share a plan that a policy's rollout does not follow)")
+            raise DeviceError("the simulated supervisor takes one arm over from a policy; these operators are the two "
+                              "hands of one person (work_together), whose shared plan a policy's rollout does not "
+                              "follow")
         if self._obs is None:
             raise DeviceError("take_over before the operator has seen the scene: call observe(obs, info) first")
         self._takeovers += 1
@@ -281,20 +288,32 @@ class SimulatedOperator(Device):
         self._hand = Hand(np.asarray(hand_pose, np.float64), DEVICE_HALF_RANGE, self.params.motor_noise(), self._rng)
         # The person has been watching: one reaction to the trouble seen, not a first look at a new scene.
         self._next_decision_s = self._reaction()
+        self._gate = gate
         closes = [i for i, g in enumerate(self._plan) if g.jaw_closed and (i == 0 or not self._plan[i - 1].jaw_closed)]
+        phase = 0 if start is None else int(start)
+        self._index = min(phase, len(self._plan) - 1)
         if not (view.has_object and view.uses_jaw and closes):
             return
         state = np.asarray(self._obs["observation"], np.float64)
-        start, close = self._segment_ending_at(closes[0])
-        if self._info.get("grasped", False):      # the policy holds it: carry on from the step after the grasp
-            self._index = min(close + 1, len(self._plan) - 1)
+        holding = bool(self._info.get("grasped", False))
+        # The grasp this takeover is about: the one it holds by (the last before the phase), or the one still to
+        # make (the first from the phase on). A one-arm task (no phase) has its first grasp.
+        if holding:
+            close = max([c for c in closes if c <= phase], default=closes[0])
+        else:
+            close = min([c for c in closes if c >= phase], default=closes[-1])
+        first, close = self._segment_ending_at(close)
+        if holding:      # the policy holds it: carry on from the step after the grasp
+            self._index = min(max(close + 1, phase), len(self._plan) - 1)
             self._jaw_closed, self._jaw_change_s = True, -np.inf
-            self._holding, self._grasp_segment = True, (start, close)
+            self._holding, self._grasp_segment = True, (first, close)
             self._hold_height, self._hold_tip = float(state[2]), state[_TIP].copy()
             return
+        if close < phase:      # this arm has no grasp left to make: it goes on with its part from the phase
+            return
         point, yaw = state[_OBJECT_POINT], float(state[_OBJECT_YAW])
-        self._plan[start:close + 1] = [g.moved_with_object(point, yaw) for g in self._plan[start:close + 1]]
-        self._index = start
+        self._plan[first:close + 1] = [g.moved_with_object(point, yaw) for g in self._plan[first:close + 1]]
+        self._index = max(first, phase)
 
     def _subgoals(self, obs: dict, plan: list[dict]) -> list[_Subgoal]:
         state = np.asarray(obs["observation"], np.float64)
@@ -395,7 +414,8 @@ class SimulatedOperator(Device):
         self._next_decision_s = t + self._period
         p = self.params
         while not self._idle:
-            if self._team is not None and not self._team.may_start(self, self._index):
+            waits_on = self._team or self._gate
+            if waits_on is not None and not waits_on.may_start(self, self._index):
                 return     # the other hand has not finished the previous step yet: wait for it
             goal = self._plan[self._index]
             if goal.snapshot and callable(goal.target):
@@ -491,7 +511,7 @@ class SimulatedOperator(Device):
     def _is_last_placement(self, index: int) -> bool:
         """Step ``index`` places the object that completes the task (one person checks it; no later placing step).
         Two hands of one person hand over rather than place: theirs is not checked."""
-        return (self._team is None and self._grasp_segment is not None and 0 <= index and self._plan[index].placing
+        return (self._team is None and self._gate is None and self._grasp_segment is not None and 0 <= index and self._plan[index].placing
                 and not any(g.placing for g in self._plan[index + 1:]))
 
     def _segment_ending_at(self, close_index: int) -> tuple[int, int]:

@@ -171,19 +171,22 @@ class Supervisor(Device):
         lost, self._held = self._held and not held, held
         if lost or self._drop_count() > self._drops:
             return "drop"
-        if self.view.has_object and self.view.uses_jaw:
-            closed = state[6] < 0.1 * JAW_OPEN_RAD and not info.get("grasped", False)
-            if closed and self._closed_at is None:
-                self._closed_at = state[0:3].copy()
-            elif not closed:
-                self._closed_at = None
-            if self._closed_at is not None and np.linalg.norm(state[0:3] - self._closed_at) > _LIFT_TO_NOTICE_M:
-                return "failed-grasp"
+        if self.view.has_object and self.view.uses_jaw and self._grasp_failed(state, held):
+            return "failed-grasp"
         if self.view.kind != "camera" and self._outside_workspace(state[0:3]):
             return "workspace"
         if t - self._best_t >= self.patience_s:
             return "no-progress"
         return None
+
+    def _grasp_failed(self, state: np.ndarray, held: bool) -> bool:
+        """The jaw closed without the object, and the tool has moved on since (call every frame it may fail)."""
+        closed = state[6] < 0.1 * JAW_OPEN_RAD and not held
+        if closed and self._closed_at is None:
+            self._closed_at = state[0:3].copy()
+        elif not closed:
+            self._closed_at = None
+        return self._closed_at is not None and np.linalg.norm(state[0:3] - self._closed_at) > _LIFT_TO_NOTICE_M
 
     def _outside_workspace(self, tip: np.ndarray) -> bool:
         from surrol_data.envs.psm_env import WORKSPACE
@@ -197,11 +200,21 @@ class Supervisor(Device):
         self._reason = reason
         self._events.append((t, f"takeover:{reason}"))
         self._taken_distance = self._distance()
-        _, info = self._state()
         self._held_since: float | None = None
-        self._grasp_problem = reason in ("failed-grasp", "drop") or (
-            self.view.has_object and self.view.uses_jaw and not info.get("grasped", False))
+        self._grasp_problem = reason in ("failed-grasp", "drop") or self._grasp_is_due()
+        self._start_driving(reason)
+
+    def _grasp_is_due(self) -> bool:
+        """The takeover is about a grasp still to make (the hand-back waits for the object held)."""
+        _, info = self._state()
+        return self.view.has_object and self.view.uses_jaw and not info.get("grasped", False)
+
+    def _start_driving(self, reason: str) -> None:
         self.operator.take_over(self._obs, self._info, self._pose)
+
+    def _back_on_course(self) -> bool:
+        """Recovered from a takeover that was not about a grasp."""
+        return self._distance() <= RECOVERED_FRACTION * self._taken_distance
 
     def _recovered(self, t: float) -> bool:
         """Back on course: hand the policy the control again (unless trust is gone, or the task is done)."""
@@ -217,7 +230,7 @@ class Supervisor(Device):
             if self._held_since is None:
                 self._held_since = t
             return t - self._held_since >= HOLD_TO_HAND_BACK_S
-        return self._distance() <= RECOVERED_FRACTION * self._taken_distance
+        return self._back_on_course()
 
     def _resting(self, t: float) -> DeviceFrame:
         gimbal = np.zeros(3)
