@@ -4,9 +4,13 @@ Every task is rendered by its own endoscope. On the PSM tasks (eleven of the fif
 open and then closed (the tool roll turned so the opening faces the camera), and the segmentation image of
 Panda3D and of TinyRenderer must show the two blades' tips apart when open (a pixel between them that is not the
 tool) and joined when closed (the closed blades cover the open tips' midpoint). With the tool tip 1 cm above the
-surface under it, switching the shadow light's shadows on must darken at least 2 % of the Panda3D image. The four
-ECM tasks have no instrument to open or to hover. The tool is brought to the centre of the view first (tasks start
-with it at the view's edge).
+surface under it, switching the shadow light's shadows on must darken at least 2 % of the Panda3D image. The tool
+is brought to the centre of the view first (tasks start with it at the view's edge).
+
+The four ECM tasks show no instrument (the endoscope is the robot; no jaw test applies), so what carries depth there
+is the objects in view: the blocks of MisOrient, StaticTrack and ActiveTrack must cast shadows onto the floor they
+stand on, and ECMReach's only object, its translucent goal marker, is a cue for the eye rather than a thing in the
+cavity and must cast none.
 
 Panda3D cases skip (naming the Debian packages) where it cannot open an offscreen OpenGL buffer.
 """
@@ -40,7 +44,9 @@ def psms_of(env) -> list:
     return list(getattr(u, "psms", None) or ([u.psm] if getattr(u, "psm", None) is not None else []))
 
 
-PSM_TASKS = [t for t in TASKS if t not in ("ECMReach", "MisOrient", "StaticTrack", "ActiveTrack")]
+ECM_TASKS = ("ECMReach", "MisOrient", "StaticTrack", "ActiveTrack")
+PSM_TASKS = [t for t in TASKS if t not in ECM_TASKS]
+BLOCK_SHADOW_SHARE = 0.003   # of the image: the contact shadows of blocks standing on the floor (0.6–0.9 % measured)
 
 
 def blade_tips(psm) -> list[np.ndarray]:
@@ -131,22 +137,43 @@ def luminance(rgb: np.ndarray) -> np.ndarray:
 @needs_panda3d
 @pytest.mark.parametrize("task", PSM_TASKS)
 def test_shadows_darken_a_visible_share_of_the_image(task):
-    from surrol_data.render.panda_camera import PandaEndoscopeCamera
-
     env = gym.make(env_id(task), render_mode="rgb_array")
     try:
         env.reset(seed=0)
         view = EnvEndoscope(env)
         pose = view.pose()
         hover_in_view(psms_of(env)[0], view.client, pose, view.scene_scale, height_m=0.01)
-        images = []
-        for shadows in (True, False):
-            cam = PandaEndoscopeCamera(view.client, SHADOW_SIZE, view.scene_scale, shadows=shadows)
-            images.append(luminance(cam.render(pose).rgb))
-            cam.close()
-        darker = images[1] - images[0]
-        share = float((darker > DARKER).mean())
+        share = shadow_share(view, pose)
         assert share >= SHADOW_SHARE, f"shadows darken {share:.2%} of the image"
-        assert (darker < -2).mean() < 0.001, "a shadow only takes light away"
+    finally:
+        env.close()
+
+
+def shadow_share(view, pose) -> float:
+    """The share of the Panda3D image that switching the shadows on darkens (and a check that they only darken)."""
+    from surrol_data.render.panda_camera import PandaEndoscopeCamera
+
+    images = []
+    for shadows in (True, False):
+        cam = PandaEndoscopeCamera(view.client, SHADOW_SIZE, view.scene_scale, shadows=shadows)
+        images.append(luminance(cam.render(pose).rgb))
+        cam.close()
+    darker = images[1] - images[0]
+    assert (darker < -2).mean() < 0.001, "a shadow only takes light away"
+    return float((darker > DARKER).mean())
+
+
+@needs_panda3d
+@pytest.mark.parametrize("task", ECM_TASKS)
+def test_ecm_views_shadow_the_objects_in_view(task):
+    env = gym.make(env_id(task), render_mode="rgb_array")
+    try:
+        env.reset(seed=0)
+        view = EnvEndoscope(env)
+        share = shadow_share(view, view.pose())
+        if task == "ECMReach":   # the goal marker alone: a cue, no shadow
+            assert share < 0.001, f"the goal marker casts a shadow over {share:.2%} of the image"
+        else:
+            assert share >= BLOCK_SHADOW_SHARE, f"the blocks' shadows darken {share:.2%} of the image"
     finally:
         env.close()
