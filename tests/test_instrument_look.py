@@ -177,3 +177,49 @@ def test_ecm_views_shadow_the_objects_in_view(task):
             assert share >= BLOCK_SHADOW_SHARE, f"the blocks' shadows darken {share:.2%} of the image"
     finally:
         env.close()
+
+
+NEEDLE_SIZE = (640, 480)
+STRIPES = 5.0    # luminance levels (of 255) off the local mean along the arc: 14 striped, under 2 smooth (measured)
+
+
+def needle_profile(renderer: str) -> np.ndarray:
+    """NeedlePick's needle seen by ``renderer``: the brightest needle pixel near each of 200 points along its arc
+    (the highlight running along the wire), from the blunt end to the point."""
+    from surrol_data.envs import objects
+
+    env = gym.make(env_id("NeedlePick"), render_mode="rgb_array")
+    try:
+        env.reset(seed=0)
+        view = EnvEndoscope(env)
+        pose = view.pose()
+        camera = make_camera(view.client, NEEDLE_SIZE, view.scene_scale, renderer)
+        image = camera.render(pose, segmentation=True)
+        if hasattr(camera, "close"):
+            camera.close()
+        body = env.unwrapped.object_id
+        origin, rot = objects.needle_pose(view.client, body)
+        lum = luminance(image.rgb)
+        axes, aspect = camera_axes(pose), NEEDLE_SIZE[0] / NEEDLE_SIZE[1]
+        profile = []
+        for angle in np.linspace(np.pi / 2, 3 * np.pi / 2, 200)[5:-5]:   # the ends' caps left out
+            point = origin + rot @ (objects.NEEDLE_RADIUS * np.array([np.cos(angle), np.sin(angle), 0.0]))
+            c, r = (int(round(v)) for v in pixel_of(project(axes, point, aspect)[:2], *NEEDLE_SIZE))
+            window = (slice(max(0, r - 2), r + 3), slice(max(0, c - 2), c + 3))
+            on_needle = image.segmentation[window] == body
+            assert on_needle.any(), f"the needle is not drawn at {angle:.2f} rad of its arc ({renderer})"
+            profile.append(lum[window][on_needle].max())
+        return np.array(profile)
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("renderer", ["tiny", pytest.param("panda3d", marks=needs_panda3d)])
+def test_the_needle_is_shaded_smoothly_along_its_arc(renderer):
+    """No stripes: along the arc the needle's highlight changes slowly (light and view turn with the arc), not
+    bright–dark every few millimetres. TinyRenderer once drew it striped: it shades a primitive by normals from the
+    primitive's centre, which along a chain of thin capsules point along the wire."""
+    profile = needle_profile(renderer)
+    local_mean = np.convolve(profile, np.ones(15) / 15, mode="valid")
+    ripple = np.abs(profile[7:-7] - local_mean)
+    assert ripple.mean() < STRIPES, f"the needle's shading ripples by {ripple.mean():.0f} levels along its arc"
