@@ -223,3 +223,11 @@ def test_the_needle_is_shaded_smoothly_along_its_arc(renderer):
     local_mean = np.convolve(profile, np.ones(15) / 15, mode="valid")
     ripple = np.abs(profile[7:-7] - local_mean)
     assert ripple.mean() < STRIPES, f"the needle's shading ripples by {ripple.mean():.0f} levels along its arc"
+
+
+def test_the_needle_mesh_file_is_what_the_geometry_makes():
+    from surrol_data.envs import instrument_geometry, objects
+
+    made = instrument_geometry.needle_obj_text(objects.NEEDLE_RADIUS, objects.NEEDLE_WIRE_RADIUS)
+    assert instrument_geometry.NEEDLE_MESH_FILE.read_text() == made, \
+        "envs/meshes/needle.obj is stale: remake it with instrument_geometry.write_needle_mesh()"
