@@ -425,7 +425,7 @@ class TrainingApp:
             keep_failures=True, append=(out / "meta" / "info.json").exists(), gui=False, progress=False,
             command=f"surrol-data gui --out {self.out}", key_tracker=KeyTracker(self.keys), on_step=self._on_step,
             env_kwargs={"render_mode": "rgb_array"}, max_attempts=SESSION_EPISODES, max_steps=self.max_steps,
-            # A person watches every step: the session runs at the arm's pace for every device, the simulated
+            # A person watches every step: the session runs at the robot's pace for every device, the simulated
             # operator included; an attempt out of time is kept only if the operator saves it.
             realtime=True, timeout_needs_save=True, policy=self.policy, policy_info=self.policy_info)
         self._session_outcome = None
