@@ -171,19 +171,18 @@ def needle_obj_text(radius: float, wire_radius: float) -> str:
     """:func:`needle_mesh` as Wavefront OBJ text (a normal per vertex, sharing its index, as PyBullet reads it)."""
     positions, normals, triangles = needle_mesh(radius, wire_radius)
     lines = [f"# the needle's visual surface: surrol_data.envs.instrument_geometry.needle_obj_text({radius}, "
-             f"{wire_radius}); remade by write_needle_mesh(), do not edit"]
+             f"{wire_radius}); remade by write_needle_mesh(radius, wire_radius), do not edit"]
     lines += [f"v {x:.7f} {y:.7f} {z:.7f}" for x, y, z in positions]
     lines += [f"vn {x:.5f} {y:.5f} {z:.5f}" for x, y, z in normals]
     lines += [f"f {a}//{a} {b}//{b} {c}//{c}" for a, b, c in triangles + 1]
     return "\n".join(lines) + "\n"
 
 
-def write_needle_mesh() -> Path:
-    """Remake ``NEEDLE_MESH_FILE`` from the needle's sizes in ``objects`` (after changing them or this module)."""
-    from surrol_data.envs.objects import NEEDLE_RADIUS, NEEDLE_WIRE_RADIUS
-
+def write_needle_mesh(radius: float, wire_radius: float) -> Path:
+    """Remake ``NEEDLE_MESH_FILE`` after changing the needle's sizes (``objects.NEEDLE_RADIUS``,
+    ``objects.NEEDLE_WIRE_RADIUS``, which ``objects`` passes here) or this module."""
     NEEDLE_MESH_FILE.parent.mkdir(exist_ok=True)
-    NEEDLE_MESH_FILE.write_text(needle_obj_text(NEEDLE_RADIUS, NEEDLE_WIRE_RADIUS))
+    NEEDLE_MESH_FILE.write_text(needle_obj_text(radius, wire_radius))
     return NEEDLE_MESH_FILE
 
 
