@@ -10,8 +10,8 @@ operates for ``seconds`` after play (paced at the task's control period, as in e
 Columns: *first frame* — play to the next frame the window draws; *first step* — play to the first drawn frame
 of the session's own world (session start-up: env, recorder, device); *max gap* — the longest time between two
 frames from play to exit; *median fps* — the median over the session's whole seconds of frames drawn in each;
-*steps/s* — env steps drawn per second (the control period's pace: 5/s for the arms, 10/s for an ECM task). The window's loop draws at most 30
-frames/s. Panda3D draws with Mesa's llvmpipe where there is no GPU.
+*steps/s* — env steps drawn per second (the control period's pace: 5/s for the arms, 10/s for an ECM
+task). The window's loop draws at most 30 frames/s. Panda3D draws with Mesa's llvmpipe where there is no GPU.
 """
 
 from __future__ import annotations

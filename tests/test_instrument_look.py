@@ -220,5 +220,5 @@ def test_the_needle_mesh_file_is_what_the_geometry_makes():
 
     made = instrument_geometry.needle_obj_text(objects.NEEDLE_RADIUS, objects.NEEDLE_WIRE_RADIUS)
     assert instrument_geometry.NEEDLE_MESH_FILE.read_text() == made, \
-        "envs/meshes/needle.obj is stale: remake it with instrument_geometry.write_needle_mesh(objects.NEEDLE_RADIUS, " \
-        "objects.NEEDLE_WIRE_RADIUS)"
+        "envs/meshes/needle.obj is stale: remake it with instrument_geometry.write_needle_mesh(" \
+        "objects.NEEDLE_RADIUS, objects.NEEDLE_WIRE_RADIUS)"

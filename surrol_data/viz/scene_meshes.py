@@ -48,8 +48,8 @@ def _rotation(q) -> np.ndarray:
 
 
 def link_meshes(client, scene_scale: float) -> tuple[list[LinkMesh], dict]:
-    """Every link with visual shapes (primitives, OBJ meshes) as one mesh in its link frame (real metres), and per body the
-    base's inertial-from-link transform that :func:`link_poses` needs."""
+    """Every link with visual shapes (primitives, OBJ meshes) as one mesh in its link frame (real metres), and per
+    body the base's inertial-from-link transform that :func:`link_poses` needs."""
     meshes, inertial = [], {}
     for i in range(client.getNumBodies()):
         body = client.getBodyUniqueId(i)
