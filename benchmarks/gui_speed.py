@@ -6,12 +6,12 @@ Usage: ``uv run python benchmarks/gui_speed.py [--size 1280x800] [--task NeedleP
 
 One run: the window opens (``xvfb``: an on-screen window in a virtual X display started here, the default when
 ``Xvfb`` is installed; ``offscreen``: Panda3D's offscreen buffer), chooses ``task``, the simulated expert
-operates for ``seconds`` after play (paced at the arm's control period, as in every GUI session), then exit.
+operates for ``seconds`` after play (paced at the task's control period, as in every GUI session), then exit.
 Columns: *first frame* — play to the next frame the window draws; *first step* — play to the first drawn frame
 of the session's own world (session start-up: env, recorder, device); *max gap* — the longest time between two
 frames from play to exit; *median fps* — the median over the session's whole seconds of frames drawn in each;
-*steps/s* — env steps drawn per second (the control period's pace is 5/s). The window's loop draws at most 30
-frames/s. Panda3D draws with Mesa's llvmpipe where there is no GPU.
+*steps/s* — env steps drawn per second (the control period's pace: 5/s for the arms, 10/s for an ECM
+task). The window's loop draws at most 30 frames/s. Panda3D draws with Mesa's llvmpipe where there is no GPU.
 """
 
 from __future__ import annotations

@@ -10,6 +10,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 
 from surrol_data.render.display import unavailable_reason
@@ -63,7 +64,7 @@ def test_gui_play_save_exit_records_a_valid_dataset(tmp_path):
     assert len(reader.trajectory(int(row["episode_index"])).action) == SAVE_AT_STEP
 
 
-def test_keyboard_keys_of_the_window_drive_the_tool(tmp_path):
+def test_keyboard_keys_of_the_window_drive_the_tool(tmp_path, capsys):
     from surrol_data.gui.app import TrainingApp
     from surrol_data.gui.keys import WindowKeys
 
@@ -105,6 +106,8 @@ def test_keyboard_keys_of_the_window_drive_the_tool(tmp_path):
     app.run()
     assert app.last_error is None and app.last_result.ended_by == "operator"
     assert app.hud.path_m > 0.002   # the held key moved the tool millimetres (untouched, it stays still)
+    # The keys are on screen (the HUD); the terminal that started the window gets no list of them.
+    assert "keys:" not in capsys.readouterr().out
 
 
 @pytest.mark.slow
@@ -296,3 +299,83 @@ def test_hud_shows_the_keys_and_the_time_limit():
     assert "/ 20 s" in hud.lines()[1]   # 100 steps of 0.2 s
     assert Hud(device="operator", skill="novice").lines()[0].endswith("simulated operator (novice)")
     assert Hud(device="touch").key_lines()[0].startswith("Enter save")   # no keyboard keys for a Touch
+
+
+@pytest.mark.parametrize("task, period", [("ECMReach", 0.1), ("NeedleReach", 0.2)])
+def test_a_paced_session_steps_at_the_tasks_control_period(tmp_path, monkeypatch, task, period):
+    """As the GUI runs a session (realtime): an ECM task steps every 0.1 s, an arm task every 0.2 s. Each step
+    waits until start + k × period; the wake-up times asked of the (real) sleep show the pace whatever the
+    machine's load (a loaded machine skips waits, it does not move them)."""
+    from surrol_data.collect import haptic_source
+    from surrol_data.collect.haptic_source import collect_haptic, control_period_s
+
+    wake_ups = []
+    sleep = time.sleep
+
+    def timed_sleep(seconds):
+        if sys._getframe(1).f_code.co_name == "_attempt":   # the pacing wait, not another thread's sleep
+            wake_ups.append(time.monotonic() + seconds)
+        sleep(seconds)
+
+    monkeypatch.setattr(haptic_source.time, "sleep", timed_sleep)
+    collect_haptic(task, 1, tmp_path / "ds", device="operator", skill="expert", operator_id="pace", max_steps=6,
+                   keep_failures=True, progress=False, realtime=True)
+    monkeypatch.undo()
+    assert len(wake_ups) >= 3, "the paced session never waited"
+    steps = np.diff(wake_ups) / period
+    assert np.allclose(steps, np.round(steps), atol=0.1) and np.round(steps).min() == 1, \
+        f"wake-ups {np.diff(wake_ups)} s apart, not whole {period} s steps"
+    import gymnasium as gym
+
+    import surrol_data.envs  # noqa: F401
+    from surrol_data.envs import env_id
+
+    env = gym.make(env_id(task))
+    assert control_period_s(env) == period   # what the GUI's HUD counts time in
+    env.close()
+
+
+def relative_luminance(rgb: np.ndarray) -> np.ndarray:
+    """WCAG 2 relative luminance of sRGB pixels (0–255)."""
+    c = rgb.astype(np.float64) / 255.0
+    linear = np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    return linear @ np.array([0.2126, 0.7152, 0.0722])
+
+
+def text_contrast(app, text) -> float:
+    """WCAG contrast of an OnscreenText's drawn text (its brightest pixels) against what surrounds the letters in
+    its box (the box's median pixel: letters cover a minority of it)."""
+    app.base.graphicsEngine.render_frame()
+    tex = app.base.win.get_screenshot()
+    w, h = tex.get_x_size(), tex.get_y_size()
+    shot = np.frombuffer(tex.get_ram_image_as("RGB"), np.uint8).reshape(h, w, 3)[::-1]
+    lo, hi = text.get_tight_bounds(app.base.aspect2d)
+    aspect = w / h
+    cols = [int(round((x / aspect + 1) / 2 * w)) for x in (lo[0], hi[0])]
+    rows = [int(round((1 - z) / 2 * h)) for z in (hi[2], lo[2])]
+    box = relative_luminance(shot[rows[0]:rows[1], cols[0]:cols[1]].reshape(-1, 3))
+    assert box.size > 500, f"the text's box is {box.size} pixels: nothing drawn?"
+    letters, around = np.percentile(box, 99.5), np.median(box)
+    return (max(letters, around) + 0.05) / (min(letters, around) + 0.05)
+
+
+def test_hud_text_reads_on_any_background(tmp_path):
+    """The HUD and the key line at the view's foot stay readable (WCAG AA, 4.5:1) over the task's lit floor and
+    over a white view (the worst background light text can have)."""
+    from surrol_data.gui.app import TrainingApp
+
+    app = TrainingApp(out=tmp_path, offscreen=True)
+    try:
+        app.choose_task("NeedleReach")
+        app.set_session("keyboard", "novice", "c1")
+        app.frame()
+        assert app.keys_text.getText().startswith("w a s d")
+        for background in ("scene", "white"):
+            if background == "white":
+                app.base.render.hide()
+                app.base.set_background_color(1, 1, 1, 1)
+            for name, text in (("HUD", app.hud_text), ("key line", app.keys_text)):
+                contrast = text_contrast(app, text)
+                assert contrast >= 4.5, f"{name} over the {background}: contrast {contrast:.1f}:1 (< 4.5:1)"
+    finally:
+        app.close()

@@ -4,9 +4,13 @@ Every task is rendered by its own endoscope. On the PSM tasks (eleven of the fif
 open and then closed (the tool roll turned so the opening faces the camera), and the segmentation image of
 Panda3D and of TinyRenderer must show the two blades' tips apart when open (a pixel between them that is not the
 tool) and joined when closed (the closed blades cover the open tips' midpoint). With the tool tip 1 cm above the
-surface under it, switching the shadow light's shadows on must darken at least 2 % of the Panda3D image. The four
-ECM tasks have no instrument to open or to hover. The tool is brought to the centre of the view first (tasks start
-with it at the view's edge).
+surface under it, switching the shadow light's shadows on must darken at least 2 % of the Panda3D image. The tool
+is brought to the centre of the view first (tasks start with it at the view's edge).
+
+The four ECM tasks show no instrument (the endoscope is the robot; no jaw test applies), so what carries depth there
+is the objects in view: the blocks of MisOrient, StaticTrack and ActiveTrack must cast shadows onto the floor they
+stand on, and ECMReach's only object, its translucent goal marker, is a cue for the eye rather than a thing in the
+cavity and must cast none.
 
 Panda3D cases skip (naming the Debian packages) where it cannot open an offscreen OpenGL buffer.
 """
@@ -40,7 +44,9 @@ def psms_of(env) -> list:
     return list(getattr(u, "psms", None) or ([u.psm] if getattr(u, "psm", None) is not None else []))
 
 
-PSM_TASKS = [t for t in TASKS if t not in ("ECMReach", "MisOrient", "StaticTrack", "ActiveTrack")]
+ECM_TASKS = ("ECMReach", "MisOrient", "StaticTrack", "ActiveTrack")
+PSM_TASKS = [t for t in TASKS if t not in ECM_TASKS]
+BLOCK_SHADOW_SHARE = 0.003   # of the image: the contact shadows of blocks standing on the floor (0.6–0.9 % measured)
 
 
 def blade_tips(psm) -> list[np.ndarray]:
@@ -129,24 +135,90 @@ def luminance(rgb: np.ndarray) -> np.ndarray:
 
 
 @needs_panda3d
-@pytest.mark.parametrize("task", PSM_TASKS)
+@pytest.mark.parametrize("task", TASKS)
 def test_shadows_darken_a_visible_share_of_the_image(task):
-    from surrol_data.render.panda_camera import PandaEndoscopeCamera
-
+    """PSM tasks: with the tool hovering 1 cm above the surface; ECM tasks: the objects as the task shows them."""
     env = gym.make(env_id(task), render_mode="rgb_array")
     try:
         env.reset(seed=0)
         view = EnvEndoscope(env)
         pose = view.pose()
-        hover_in_view(psms_of(env)[0], view.client, pose, view.scene_scale, height_m=0.01)
-        images = []
-        for shadows in (True, False):
-            cam = PandaEndoscopeCamera(view.client, SHADOW_SIZE, view.scene_scale, shadows=shadows)
-            images.append(luminance(cam.render(pose).rgb))
-            cam.close()
-        darker = images[1] - images[0]
-        share = float((darker > DARKER).mean())
-        assert share >= SHADOW_SHARE, f"shadows darken {share:.2%} of the image"
-        assert (darker < -2).mean() < 0.001, "a shadow only takes light away"
+        if task in PSM_TASKS:
+            hover_in_view(psms_of(env)[0], view.client, pose, view.scene_scale, height_m=0.01)
+        share = shadow_share(view, pose)
+        if task == "ECMReach":   # the goal marker alone: a cue, no shadow
+            assert share < 0.001, f"the goal marker casts a shadow over {share:.2%} of the image"
+        else:
+            least = SHADOW_SHARE if task in PSM_TASKS else BLOCK_SHADOW_SHARE
+            assert share >= least, f"shadows darken {share:.2%} of the image"
     finally:
         env.close()
+
+
+def shadow_share(view, pose) -> float:
+    """The share of the Panda3D image that switching the shadows on darkens (and a check that they only darken)."""
+    from surrol_data.render.panda_camera import PandaEndoscopeCamera
+
+    images = []
+    for shadows in (True, False):
+        cam = PandaEndoscopeCamera(view.client, SHADOW_SIZE, view.scene_scale, shadows=shadows)
+        images.append(luminance(cam.render(pose).rgb))
+        cam.close()
+    darker = images[1] - images[0]
+    assert (darker < -2).mean() < 0.001, "a shadow only takes light away"
+    return float((darker > DARKER).mean())
+
+
+NEEDLE_SIZE = (640, 480)
+STRIPES = 5.0    # luminance levels (of 255) off the local mean along the arc: 14 striped, under 2 smooth (measured)
+
+
+def needle_profile(renderer: str) -> np.ndarray:
+    """NeedlePick's needle seen by ``renderer``: the brightest needle pixel near each of 200 points along its arc
+    (the highlight running along the wire), from the blunt end to the point."""
+    from surrol_data.envs import objects
+
+    env = gym.make(env_id("NeedlePick"), render_mode="rgb_array")
+    try:
+        env.reset(seed=0)
+        view = EnvEndoscope(env)
+        pose = view.pose()
+        camera = make_camera(view.client, NEEDLE_SIZE, view.scene_scale, renderer)
+        image = camera.render(pose, segmentation=True)
+        if hasattr(camera, "close"):
+            camera.close()
+        body = env.unwrapped.object_id
+        origin, rot = objects.needle_pose(view.client, body)
+        lum = luminance(image.rgb)
+        axes, aspect = camera_axes(pose), NEEDLE_SIZE[0] / NEEDLE_SIZE[1]
+        profile = []
+        for angle in np.linspace(np.pi / 2, 3 * np.pi / 2, 200)[5:-5]:   # the ends' caps left out
+            point = origin + rot @ (objects.NEEDLE_RADIUS * np.array([np.cos(angle), np.sin(angle), 0.0]))
+            c, r = (int(round(v)) for v in pixel_of(project(axes, point, aspect)[:2], *NEEDLE_SIZE))
+            window = (slice(max(0, r - 2), r + 3), slice(max(0, c - 2), c + 3))
+            on_needle = image.segmentation[window] == body
+            assert on_needle.any(), f"the needle is not drawn at {angle:.2f} rad of its arc ({renderer})"
+            profile.append(lum[window][on_needle].max())
+        return np.array(profile)
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("renderer", ["tiny", pytest.param("panda3d", marks=needs_panda3d)])
+def test_the_needle_is_shaded_smoothly_along_its_arc(renderer):
+    """No stripes: along the arc the needle's highlight changes slowly (light and view turn with the arc), not
+    bright–dark every few millimetres. TinyRenderer once drew it striped: it shades a primitive by normals from the
+    primitive's centre, which along a chain of thin capsules point along the wire."""
+    profile = needle_profile(renderer)
+    local_mean = np.convolve(profile, np.ones(15) / 15, mode="valid")
+    ripple = np.abs(profile[7:-7] - local_mean)
+    assert ripple.mean() < STRIPES, f"the needle's shading ripples by {ripple.mean():.0f} levels along its arc"
+
+
+def test_the_needle_mesh_file_is_what_the_geometry_makes():
+    from surrol_data.envs import instrument_geometry, objects
+
+    made = instrument_geometry.needle_obj_text(objects.NEEDLE_RADIUS, objects.NEEDLE_WIRE_RADIUS)
+    assert instrument_geometry.NEEDLE_MESH_FILE.read_text() == made, \
+        "envs/meshes/needle.obj is stale: remake it with instrument_geometry.write_needle_mesh(" \
+        "objects.NEEDLE_RADIUS, objects.NEEDLE_WIRE_RADIUS)"

@@ -112,9 +112,10 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
     devices or one per device. ``trace``: what ``replay`` plays. ``gui``: PyBullet window (default: when a
     display exists and the device is a human one). ``rerun_live``: ``"spawn"`` (start a viewer), a
     ``rerun+http://`` URL, or an ``.rrd`` path to stream the session to. ``max_attempts``: stop after that
-    many finished attempts (default 3 × episodes). ``realtime``: pace steps to the control period (default:
-    for human devices only). ``key_tracker``: the key source of a host window (the training GUI) for keyboard
-    devices and the session keys. ``on_step(env, step, obs, info, flags)``: called after every env step
+    many finished attempts (default 3 × episodes). ``realtime``: pace steps to the task's control period
+    (:func:`control_period_s`; default: for human devices only). ``key_tracker``: the key source of a host window
+    (the training GUI) for keyboard devices and the session keys; the window shows the keys, so the session does
+    not print them. ``on_step(env, step, obs, info, flags)``: called after every env step
     (``step`` counts from 1 in each attempt), e.g. to draw a frame. ``env_kwargs``: extra ``gym.make`` arguments.
     ``profile``: the simulated operator's profile when not the skill's natural one, e.g. ``expert_matched`` (see
     :data:`surrol_data.collect.operator.profiles.MATCHED_PROFILES`); its skill must be ``skill``.
@@ -209,6 +210,14 @@ def human_horizon(task: str) -> int:
     return _human_horizon(eid, gym.spec(eid).max_episode_steps)
 
 
+def control_period_s(env) -> float:
+    """Simulated seconds per step of ``env``: an ECM task (one camera, a 1-, 3- or 4-D action) steps every 0.1 s,
+    the arms every 0.2 s. A session paced for a person waits this long between steps."""
+    from surrol_data.envs.physics import ECM_CONTROL_PERIOD_S
+
+    return ECM_CONTROL_PERIOD_S if env.action_space.shape[0] % 5 else CONTROL_PERIOD_S
+
+
 def _human_horizon(eid: str, registered: int) -> int:
     """A person's horizon: HUMAN_HORIZON_FACTOR × the registered one (or the task's HUMAN_PACE_STEPS) in time, not
     steps (an ECM task's 0.1 s steps get twice as many), and twice that where two hands take turns (one waits while
@@ -248,6 +257,7 @@ class _Session:
         self.gui, self.command, self.on_step = gui, command, on_step
         act_dim = env.action_space.shape[0]
         self.ecm_only = act_dim % 5 != 0   # ECM tasks: a 1-, 3- or 4-D camera action, one device
+        self.control_period_s = control_period_s(env)
         n_devices = 1 if self.ecm_only else act_dim // 5
 
         if sides is None:
@@ -265,6 +275,9 @@ class _Session:
 
         # Ready-made keyboard devices bring their key source; the session keys are read from the same one.
         given = [] if isinstance(device, str) else list(device)
+        # A host window that brings its key source shows the keys itself (the training GUI's HUD): the list of
+        # session keys is printed only for the key sources the session opens (terminal, PyBullet window).
+        self.keys_on_screen = key_tracker is not None
         self.key_tracker = key_tracker or next((d.tracker for d in given if getattr(d, "tracker", None) is not None),
                                                None) or self._key_tracker(names)
         if isinstance(device, str):
@@ -335,7 +348,7 @@ class _Session:
                     connected.append(dev)
                 if self.key_tracker is not None:
                     self.key_tracker.start()
-                    if self.realtime:
+                    if self.realtime and not self.keys_on_screen:
                         tqdm.write("keys: r = redo this attempt, f = discard it, Enter = save it as it stands, "
                                    "Esc = end the session (Ctrl-C in a terminal)")
                         if self.policy is not None:
@@ -408,7 +421,7 @@ class _Session:
             self.live.begin(attempt_seed)
         for k in range(self.horizon):
             if self.realtime:   # one step per control period, as the arm would move under a human hand
-                delay = start + k * CONTROL_PERIOD_S - time.monotonic()
+                delay = start + k * self.control_period_s - time.monotonic()
                 if delay > 0:
                     time.sleep(delay)
             command = self._session_command()
@@ -528,7 +541,7 @@ class _Session:
             # The hand's frame per device (camera: the endoscope image of this camera version; robot: the
             # action's axes); recorded actions are in the robot's frame either way.
             "mapping_frames": [m.frame for m in mappings], "camera_version": CAMERA_VERSION,
-            "horizon": self.horizon, "control_period_s": CONTROL_PERIOD_S, "realtime": self.realtime,
+            "horizon": self.horizon, "control_period_s": self.control_period_s, "realtime": self.realtime,
             "steps_after_success": STEPS_AFTER_SUCCESS,
         }
         if replayed:

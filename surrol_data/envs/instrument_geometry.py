@@ -9,8 +9,13 @@ The PSM carries a da Vinci EndoWrist-style needle driver, modelled here from pri
 * two jaw blades, 10.2 mm long (``kinematics.TIP_LENGTH``), each on its own jaw joint, so they open and close
   with ``jaw_angle``: a wide heel, a narrower distal half, and a darker grip insert on the inner face.
 
-The needle is a smooth arc (``NEEDLE_VISUAL_SEGMENTS`` short capsules whose rounded ends hide the joints)
-tapering to its point over the last ``NEEDLE_TAPER`` of its length (the 6-capsule collision shape is unchanged).
+The needle is a smooth tube along its arc (:func:`needle_mesh`), tapering to its point over the last
+``NEEDLE_TAPER`` of its length (the 6-capsule collision shape is unchanged). It is a mesh, not a chain of capsules:
+TinyRenderer shades a primitive with normals pointing from the primitive's centre to each of its vertices, so
+along a capsule much longer than it is thick the normals run along the wire, one end of every capsule lit and the
+other dark — a striped needle. The mesh carries the tube's true normals; it is written to ``NEEDLE_MESH_FILE``
+(an OBJ that :func:`needle_obj_text` makes, kept in the package) because PyBullet hands a mesh's triangles back to
+the other renderers only as a file name.
 
 These parts become the PyBullet *visual* shapes of the bodies (:func:`visual_shape_array`), so TinyRenderer draws
 them, and the Panda3D mirror and the Rerun meshes read them back from PyBullet — one geometry for the three.
@@ -26,6 +31,7 @@ Sizes in real metres; :func:`visual_shape_array` scales them to the scene.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
@@ -43,8 +49,11 @@ DARK_STEEL = (0.42, 0.42, 0.46, 1.0)
 GRIP = (0.25, 0.25, 0.28, 1.0)
 
 MAX_SHAPES_PER_ARRAY = 16     # createVisualShapeArray segfaults with more
-NEEDLE_VISUAL_SEGMENTS = 16   # PyBullet's most shapes in one visual array; 11° apart the arc reads smooth
 NEEDLE_TAPER = 0.2            # the last 20 % of the arc narrows to the point
+NEEDLE_POINT = 0.5            # the point keeps this share of the wire's radius (a finer one drops out of TinyRenderer)
+NEEDLE_RINGS = 72             # cross-sections along the arc: 2.5° apart, the silhouette reads smooth
+NEEDLE_SIDES = 10             # vertices round the wire
+NEEDLE_MESH_FILE = Path(__file__).with_name("meshes") / "needle.obj"
 
 
 class Part(NamedTuple):
@@ -124,30 +133,63 @@ def tool_link_parts(wrist_length: float) -> dict[int, list[Part]]:
     return {3: roll_link_parts(), 4: wrist_link_parts(wrist_length)}
 
 
-def needle_visual_parts(radius: float, wire_radius: float, colour) -> list[Part]:
-    """The needle's arc from 90° to 270° (from +y through −x to −y, the needle frame of ``objects``), in short
-    capsules tangent to the arc; the point (at 270°) tapers over the last ``NEEDLE_TAPER`` of the arc."""
-    n = NEEDLE_VISUAL_SEGMENTS
-    angles = np.linspace(np.pi / 2, 3 * np.pi / 2, n + 1)
-    points = np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], axis=1) * radius
-    parts = []
-    for k, (a, b) in enumerate(zip(points[:-1], points[1:])):
-        along = (k + 0.5) / n
-        taper = min(1.0, (1.0 - along) / NEEDLE_TAPER)
-        r = wire_radius * max(0.25, taper)
-        d = b - a
-        yaw = math.atan2(d[1], d[0])
-        # z onto the chord: 90° about y (z → x), then the chord's heading about z.
-        quat = _quat_multiply((0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)), _AXIS_QUAT["x"])
-        parts.append(Part("capsule", (r, float(np.linalg.norm(d))), tuple((a + b) / 2), quat, colour))
-    return parts
+def needle_mesh(radius: float, wire_radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The needle's surface in its frame (metres): a tube of ``wire_radius`` along the arc of ``radius`` from 90°
+    to 270° (from +y through −x to −y, the needle frame of ``objects``), closed at both ends, the point (270°)
+    tapered. Returns positions (N, 3), unit outward normals (N, 3) and triangles (M, 3), counter-clockwise seen
+    from outside."""
+    k = np.arange(NEEDLE_RINGS + 1)
+    along = k / NEEDLE_RINGS
+    angle = np.pi / 2 + np.pi * along
+    radial = np.stack([np.cos(angle), np.sin(angle), np.zeros_like(angle)], axis=1)      # out of the arc
+    tangent = np.stack([-np.sin(angle), np.cos(angle), np.zeros_like(angle)], axis=1)    # towards the point
+    wire = wire_radius * np.clip((1.0 - along) / NEEDLE_TAPER, NEEDLE_POINT, 1.0)
+    phi = 2 * np.pi * np.arange(NEEDLE_SIDES) / NEEDLE_SIDES
+    # Ring k, side j: round the wire in the plane of the radial and the needle's normal (z).
+    around = (np.cos(phi)[None, :, None] * radial[:, None, :]
+              + np.sin(phi)[None, :, None] * np.array([0.0, 0.0, 1.0]))
+    centres = radial * radius
+    positions = (centres[:, None, :] + wire[:, None, None] * around).reshape(-1, 3)
+    normals = around.reshape(-1, 3)
+    index = np.arange(positions.shape[0]).reshape(NEEDLE_RINGS + 1, NEEDLE_SIDES)
+    a, b = index[:-1], np.roll(index[:-1], -1, axis=1)
+    c, d = np.roll(index[1:], -1, axis=1), index[1:]
+    triangles = [np.stack([a, d, c], -1).reshape(-1, 3), np.stack([a, c, b], -1).reshape(-1, 3)]
+    # Rounded-off ends: a pole half a wire radius beyond each end ring, its normal along the wire.
+    points, directions = [positions], [normals]
+    for ring, sign in ((0, -1.0), (NEEDLE_RINGS, 1.0)):
+        pole = positions.shape[0] + len(points) - 1
+        points.append((centres[ring] + sign * 0.5 * wire[ring] * tangent[ring])[None])
+        directions.append((sign * tangent[ring])[None])
+        rim = index[ring]
+        fan = np.stack([np.full(NEEDLE_SIDES, pole), np.roll(rim, -1), rim], -1)
+        triangles.append(fan if sign > 0 else fan[:, ::-1])
+    return np.concatenate(points), np.concatenate(directions), np.concatenate(triangles)
 
 
-def _quat_multiply(q1, q2) -> tuple:
-    x1, y1, z1, w1 = q1
-    x2, y2, z2, w2 = q2
-    return (w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2, w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
-            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2, w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2)
+def needle_obj_text(radius: float, wire_radius: float) -> str:
+    """:func:`needle_mesh` as Wavefront OBJ text (a normal per vertex, sharing its index, as PyBullet reads it)."""
+    positions, normals, triangles = needle_mesh(radius, wire_radius)
+    lines = [f"# the needle's visual surface: surrol_data.envs.instrument_geometry.needle_obj_text({radius}, "
+             f"{wire_radius}); remade by write_needle_mesh(radius, wire_radius), do not edit"]
+    lines += [f"v {x:.7f} {y:.7f} {z:.7f}" for x, y, z in positions]
+    lines += [f"vn {x:.5f} {y:.5f} {z:.5f}" for x, y, z in normals]
+    lines += [f"f {a}//{a} {b}//{b} {c}//{c}" for a, b, c in triangles + 1]
+    return "\n".join(lines) + "\n"
+
+
+def write_needle_mesh(radius: float, wire_radius: float) -> Path:
+    """Remake ``NEEDLE_MESH_FILE`` after changing the needle's sizes (``objects.NEEDLE_RADIUS``,
+    ``objects.NEEDLE_WIRE_RADIUS``, which ``objects`` passes here) or this module."""
+    NEEDLE_MESH_FILE.parent.mkdir(exist_ok=True)
+    NEEDLE_MESH_FILE.write_text(needle_obj_text(radius, wire_radius))
+    return NEEDLE_MESH_FILE
+
+
+def needle_visual_shape(client, scale: float, colour) -> int:
+    """The needle's PyBullet visual shape: ``NEEDLE_MESH_FILE`` (real metres) built ``scale`` times larger."""
+    return client.createVisualShape(pb.GEOM_MESH, fileName=str(NEEDLE_MESH_FILE), meshScale=[scale] * 3,
+                                    rgbaColor=list(colour))
 
 
 def part_quaternion(part: Part) -> tuple:

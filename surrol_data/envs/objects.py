@@ -151,10 +151,8 @@ def needle_spec(client, visual: bool = True) -> dict:
     col = client.createCollisionShapeArray([pb.GEOM_CAPSULE] * n, radii=[r] * n, lengths=[g.length] * n,
                                            collisionFramePositions=g.positions,
                                            collisionFrameOrientations=g.orientations)
-    # The look is a smooth tapered arc (instrument_geometry); the collision keeps its few capsules.
-    vis = instrument_geometry.visual_shape_array(
-        client, instrument_geometry.needle_visual_parts(NEEDLE_RADIUS, NEEDLE_WIRE_RADIUS, NEEDLE_COLOUR),
-        SCALING) if visual else -1
+    # The look is a smooth tapered tube (instrument_geometry's mesh); the collision keeps its few capsules.
+    vis = instrument_geometry.needle_visual_shape(client, SCALING, NEEDLE_COLOUR) if visual else -1
     # The centre of mass sits on the symmetry axis at 2R/π from the arc centre; PyBullet reports the base
     # pose at the centre of mass, so use set_needle_pose/needle_pose to speak in needle-frame terms.
     return dict(baseMass=NEEDLE_MASS, baseCollisionShapeIndex=col, baseVisualShapeIndex=vis,

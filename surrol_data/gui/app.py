@@ -30,11 +30,9 @@ import gymnasium as gym
 
 import surrol_data.envs  # noqa: F401  (registers the tasks)
 from surrol_data.collect.devices.keyboard import DISCARD_KEY, QUIT_KEY, REDO_KEY, SAVE_KEY, TAKEOVER_KEY
-from surrol_data.collect.haptic_source import SKILLS, has_display
+from surrol_data.collect.haptic_source import SKILLS, control_period_s, has_display
 from surrol_data.envs import TASKS, env_id
 from surrol_data.gui.hud import Hud
-from surrol_data.envs.physics import ECM_CONTROL_PERIOD_S
-from surrol_data.envs.units import CONTROL_PERIOD_S
 from surrol_data.render import display
 
 # The events Panda3D's GUI items send when the mouse wheel turns over them (as DirectGuiGlobals' B1PRESS for clicks).
@@ -45,6 +43,9 @@ WINDOW_SIZE = (1280, 720)
 PANEL_FRACTION = 0.34      # of the window's width, for the task panel
 CONTROLS_FRACTION = 0.16   # of the window's height, for the controls under the view
 THUMBNAIL = (192, 144)
+# The HUD's backing: 72 % black keeps its text above 4.5:1 (WCAG AA) contrast even over a white background.
+HUD_PLATE = (0.02, 0.02, 0.03, 0.72)
+HUD_PLATE_MARGIN = (0.4, 0.4, 0.25, 0.3)   # left, right, bottom, top, in the text's line heights
 _IDLE_FRAME_S = 1 / 30
 _WHEEL_STEP = 0.08          # of the task list's height per wheel notch
 SESSION_EPISODES = 10_000   # a session records until exit unless told otherwise
@@ -226,12 +227,15 @@ class TrainingApp:
 
         aspect = self.size[0] / self.size[1]
         x = -aspect + 2 * aspect * PANEL_FRACTION + 0.04
-        self.hud_text = OnscreenText(text="", pos=(x, 0.92), scale=0.045, align=TextNode.A_left,
-                                     fg=(0.95, 0.95, 0.6, 1), shadow=(0, 0, 0, 1), mayChange=True)
+        # Light text on a dark plate: the view behind it may be anything from the black void to a lit white board,
+        # and a drop shadow alone leaves light text unreadable on a light floor.
+        plate = dict(bg=HUD_PLATE, shadow=(0, 0, 0, 1), mayChange=True, align=TextNode.A_left)
+        self.hud_text = OnscreenText(text="", pos=(x, 0.92), scale=0.045, fg=(0.95, 0.95, 0.6, 1), **plate)
         # The keys that work, at the foot of the view (a new user should not need the README to operate).
         self.keys_text = OnscreenText(text="", pos=(x, -1 + 2 * CONTROLS_FRACTION + 0.09), scale=0.035,
-                                      align=TextNode.A_left, fg=(0.85, 0.9, 1.0, 1), shadow=(0, 0, 0, 1),
-                                      mayChange=True)
+                                      fg=(0.85, 0.9, 1.0, 1), **plate)
+        for text in (self.hud_text, self.keys_text):
+            text.textNode.set_card_as_margin(*HUD_PLATE_MARGIN)
 
     # ------------------------------------------------------------------ task pictures and descriptions
     @staticmethod
@@ -290,9 +294,9 @@ class TrainingApp:
         self._preview_env.reset(seed=self.seed)
         self._show_env(self._preview_env)
         act_dim = self._preview_env.action_space.shape[0]
-        ecm = act_dim % 5 != 0   # an ECM task: one camera, 0.1 s steps
+        ecm = act_dim % 5 != 0   # an ECM task: one camera
         self.hud.task, self.hud.arms = task, 1 if ecm else act_dim // 5
-        self.hud.period_s = ECM_CONTROL_PERIOD_S if ecm else CONTROL_PERIOD_S
+        self.hud.period_s = control_period_s(self._preview_env)   # what the session paces its steps by
         self.hud.intervention = self.policy is not None
         self.status["text"] = f"{task}: press play"
 
@@ -421,7 +425,7 @@ class TrainingApp:
             keep_failures=True, append=(out / "meta" / "info.json").exists(), gui=False, progress=False,
             command=f"surrol-data gui --out {self.out}", key_tracker=KeyTracker(self.keys), on_step=self._on_step,
             env_kwargs={"render_mode": "rgb_array"}, max_attempts=SESSION_EPISODES, max_steps=self.max_steps,
-            # A person watches every step: the session runs at the arm's pace for every device, the simulated
+            # A person watches every step: the session runs at the robot's pace for every device, the simulated
             # operator included; an attempt out of time is kept only if the operator saves it.
             realtime=True, timeout_needs_save=True, policy=self.policy, policy_info=self.policy_info)
         self._session_outcome = None

@@ -1,9 +1,11 @@
-"""What a PyBullet body looks like, read back from PyBullet without Panda3D: its primitive visual shapes as
-triangle meshes and where each of its links is. The Panda3D mirror (:mod:`~surrol_data.render.scene_mirror`)
+"""What a PyBullet body looks like, read back from PyBullet without Panda3D: its visual shapes (primitives and OBJ
+meshes) as triangle meshes and where each of its links is. The Panda3D mirror (:mod:`~surrol_data.render.scene_mirror`)
 and the Rerun scene (:mod:`surrol_data.viz.scene_meshes`) both build on it, so they draw the same geometry.
 """
 
 from __future__ import annotations
+
+import functools
 
 import numpy as np
 
@@ -24,6 +26,38 @@ def primitive_mesh(kind: int, dims) -> shapes.Mesh:
     if kind == pb.GEOM_CAPSULE:
         return shapes.capsule(dims[0], dims[1])
     raise ValueError(f"PyBullet geometry type {kind} is not a primitive (box, sphere, cylinder, capsule)")
+
+
+def visual_mesh(kind: int, dims, filename) -> shapes.Mesh | None:
+    """The mesh of a visual shape from ``getVisualShapeData``'s kind, dimensions and file name (scene units):
+    a primitive, or a Wavefront OBJ file scaled by its mesh scale (``dims``); None for what PyBullet does not hand
+    back (a mesh given as vertices has no file) or for other mesh formats."""
+    if kind in PRIMITIVE_KINDS:
+        return primitive_mesh(kind, dims)
+    path = filename.decode() if isinstance(filename, bytes) else str(filename)
+    if kind != pb.GEOM_MESH or not path.lower().endswith(".obj"):
+        return None
+    mesh = obj_mesh(path)
+    return shapes.Mesh(mesh.positions * np.asarray(dims, np.float32), mesh.normals, mesh.uvs, mesh.triangles)
+
+
+@functools.cache
+def obj_mesh(path: str) -> shapes.Mesh:
+    """A triangulated OBJ file with one normal per vertex at the vertex's index (``f a//a b//b c//c``, as
+    :func:`surrol_data.envs.instrument_geometry.needle_obj_text` writes them)."""
+    positions, normals, triangles = [], [], []
+    with open(path, encoding="utf-8") as f:
+        for line in f:
+            kind, _, rest = line.partition(" ")
+            if kind == "v":
+                positions.append([float(v) for v in rest.split()[:3]])
+            elif kind == "vn":
+                normals.append([float(v) for v in rest.split()[:3]])
+            elif kind == "f":
+                triangles.append([int(v.split("/")[0]) - 1 for v in rest.split()[:3]])
+    if len(normals) != len(positions):
+        raise ValueError(f"{path}: {len(positions)} vertices but {len(normals)} normals (one per vertex expected)")
+    return shapes.Mesh(positions, normals, np.zeros((len(positions), 2)), triangles)
 
 
 def base_inertial_frame(client, body: int):

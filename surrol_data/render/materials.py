@@ -39,7 +39,8 @@ METAL = Look("metal", 0.8, 80.0, None, 0.0)
 SILICONE = Look("silicone", 0.12, 12.0, "grain", 0.08)
 PLASTIC = Look("plastic", 0.1, 8.0, None, 0.0)
 
-_ROUND_SHAPES = {2, 4, 7}   # pybullet GEOM_SPHERE, GEOM_CYLINDER, GEOM_CAPSULE
+# pybullet GEOM_SPHERE, GEOM_CYLINDER, GEOM_CAPSULE, and GEOM_MESH by its thinnest half-extent (the needle's wire)
+_ROUND_SHAPES = {2, 4, 5, 7}
 _METAL_RADIUS_M = 0.003
 
 

@@ -75,7 +75,7 @@ class SceneMirror:
         # body id -> (its visual shape data, its node, link index -> link node, base link-from-inertial pose)
         self._bodies: dict[int, tuple] = {}
         self._textures: dict[str, Texture] = {}
-        self._meshes: dict[tuple, GeomNode] = {}
+        self._meshes: dict[tuple, tuple[GeomNode, shapes.Mesh] | None] = {}   # None: not a mesh we can read
 
     @property
     def body_ids(self) -> list[int]:
@@ -124,9 +124,22 @@ class SceneMirror:
     def _shape_node(self, kind: int, dims, filename: bytes, rgba) -> NodePath | None:
         s = self.scene_scale
         radius_m = None
-        if kind == pb.GEOM_MESH:
+        key = (kind, tuple(round(float(v), 7) for v in dims), filename)
+        if key not in self._meshes:
+            mesh = body_shapes.visual_mesh(kind, dims, filename)
+            self._meshes[key] = None if mesh is None else (_geom_node(f"shape{kind}", mesh), mesh)
+        if self._meshes[key] is not None:
+            geom, mesh = self._meshes[key]
+            np_ = NodePath(geom.make_copy())
+            if kind in (pb.GEOM_SPHERE,):
+                radius_m = dims[0] / s
+            elif kind in (pb.GEOM_CYLINDER, pb.GEOM_CAPSULE):
+                radius_m = dims[1] / s
+            elif kind == pb.GEOM_MESH:   # a mesh is as thin as its thinnest extent (the needle: its wire)
+                radius_m = float(np.ptp(mesh.positions, axis=0).min()) / 2 / s
+        else:
             path = filename.decode() if isinstance(filename, bytes) else str(filename)
-            if not path:
+            if kind != pb.GEOM_MESH or not path:
                 return None   # a mesh from vertices: PyBullet does not hand its triangles back
             from panda3d.core import Filename, Loader
 
@@ -135,16 +148,6 @@ class SceneMirror:
                 return None
             np_ = NodePath(model)
             np_.set_scale(*dims)
-        else:
-            key = (kind, tuple(round(float(v), 7) for v in dims))
-            if key not in self._meshes:
-                mesh = body_shapes.primitive_mesh(kind, dims)
-                self._meshes[key] = _geom_node(f"shape{kind}", mesh)
-            np_ = NodePath(self._meshes[key].make_copy())
-            if kind in (pb.GEOM_SPHERE,):
-                radius_m = dims[0] / s
-            elif kind in (pb.GEOM_CYLINDER, pb.GEOM_CAPSULE):
-                radius_m = dims[1] / s
         self._apply_look(np_, kind, radius_m, rgba)
         return np_
 

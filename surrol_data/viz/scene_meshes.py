@@ -48,17 +48,17 @@ def _rotation(q) -> np.ndarray:
 
 
 def link_meshes(client, scene_scale: float) -> tuple[list[LinkMesh], dict]:
-    """Every link with primitive visual shapes as one mesh in its link frame (real metres), and per body the
-    base's inertial-from-link transform that :func:`link_poses` needs."""
+    """Every link with visual shapes (primitives, OBJ meshes) as one mesh in its link frame (real metres), and per
+    body the base's inertial-from-link transform that :func:`link_poses` needs."""
     meshes, inertial = [], {}
     for i in range(client.getNumBodies()):
         body = client.getBodyUniqueId(i)
         per_link: dict[int, list] = {}
         for shape in client.getVisualShapeData(body):
             link, kind, dims, local_pos, local_orn, rgba = shape[1], shape[2], shape[3], shape[5], shape[6], shape[7]
-            if kind not in body_shapes.PRIMITIVE_KINDS:
+            mesh = body_shapes.visual_mesh(kind, dims, shape[4])
+            if mesh is None:
                 continue
-            mesh = body_shapes.primitive_mesh(kind, dims)
             rot = _rotation(local_orn)
             placed = shapes.Mesh((mesh.positions @ rot.T + np.asarray(local_pos)) / scene_scale,
                                  mesh.normals @ rot.T, mesh.uvs, mesh.triangles)
