@@ -368,8 +368,11 @@ class DatasetReader:
             raise DatasetError(f"episode {ep}: {table.num_rows} frames in {self._data_path(self._episode_row(ep))}, "
                                f"metadata says {expected}; run `surrol-data repair {self.root}`")
         traj = self._trajectory_from(table)
-        if images:
-            traj.images = {cam: np.concatenate([f, f[-1:]]) for cam, f in self.frames(ep).items()}
+        return self._with_images(traj, ep) if images else traj
+
+    def _with_images(self, traj: Trajectory, ep: int) -> Trajectory:
+        """``traj`` with episode ``ep``'s camera frames; the image of s_T repeats the last one (not stored)."""
+        traj.images = {cam: np.concatenate([f, f[-1:]]) for cam, f in self.frames(ep).items()}
         return traj
 
     @property
@@ -395,8 +398,9 @@ class DatasetReader:
                                       length)
         return out
 
-    def trajectories(self, episodes: Iterable[int] | None = None) -> list[Trajectory]:
-        """Trajectories of ``episodes`` (all if None), in the order given, each data file read once."""
+    def trajectories(self, episodes: Iterable[int] | None = None, images: bool = False) -> list[Trajectory]:
+        """Trajectories of ``episodes`` (all if None), in the order given, each data file read once (``images``: as
+        :meth:`trajectory`)."""
         columns = [*_TRANSITION_COLUMNS.values(), *_TRAJECTORY_EXTRA, *self._event_columns()]
         self._require_features(columns)
         order = self.select() if episodes is None else [int(e) for e in episodes]
@@ -405,7 +409,8 @@ class DatasetReader:
         # rows are sorted by global index, so each episode is one contiguous block
         starts = {int(e): int(i) for e, i in zip(*np.unique(ep_col, return_index=True), strict=True)}
         counts = dict(zip(*np.unique(ep_col, return_counts=True), strict=True))
-        return [self._trajectory_from(table.slice(starts[ep], int(counts[ep]))) for ep in order]
+        trajectories = [self._trajectory_from(table.slice(starts[ep], int(counts[ep]))) for ep in order]
+        return [self._with_images(t, ep) for t, ep in zip(trajectories, order, strict=True)] if images else trajectories
 
     def transitions(self, episodes: Iterable[int] | None = None) -> dict[str, np.ndarray]:
         """Every (s_t, a_t, r_t, s_{t+1}) of ``episodes`` (all if None) as flat arrays, in dataset order.
