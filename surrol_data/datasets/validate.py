@@ -165,7 +165,12 @@ def _validate(root: Path, check_reward: bool, check_lerobot: bool, check_videos:
     stage("provenance")
     meta_tables = [table.append_column("__meta_file", pa.array([str(path.relative_to(root))] * table.num_rows))
                    for path, table in meta_files]
-    meta_full = pa.concat_tables(meta_tables, promote_options="default").sort_by("episode_index")
+    try:
+        meta_full = pa.concat_tables(meta_tables, promote_options="default").sort_by("episode_index")
+    except (pa.ArrowInvalid, pa.ArrowTypeError) as e:
+        return problems + [Problem("provenance", f"{EPISODES_DIR}/", f"its files disagree on a column's type ({e}); "
+                                   "one type per column (use -1 / nan / '' for unknown): restore the edited file "
+                                   f"from a copy, or {REPAIR_HINT}")]
     del meta_tables
     meta = meta_full.select([n for n in meta_full.column_names if not n.startswith("stats/")])
     provenance_problems = _check_provenance(meta)
@@ -176,8 +181,9 @@ def _validate(root: Path, check_reward: bool, check_lerobot: bool, check_videos:
     side = read_sidecar(root)
     if not frames:
         problems += _check_tasks(root, info, meta, None)
-        count_problems = _check_counts_from_footers(root, info, meta, data_files)
-        problems += count_problems
+        problems += _check_counts_from_footers(root, info, meta, data_files)
+        problems += _check_locations(root, info, meta, None)
+        problems += _check_stats_file(root)
         problems += _check_sidecar(root, side, meta)
         if not provenance_problems:
             problems += _check_provenance_seals(meta, bool(side.get("seals")))
@@ -406,8 +412,9 @@ def _check_tasks(root: Path, info: dict, meta: pa.Table, data: pa.Table | None) 
     return problems
 
 
-def _check_locations(root: Path, info: dict, meta: pa.Table, data: pa.Table) -> list[Problem]:
-    """Each episode's rows are where meta/episodes says (file, from/to index)."""
+def _check_locations(root: Path, info: dict, meta: pa.Table, data: pa.Table | None) -> list[Problem]:
+    """Each episode's rows are where meta/episodes says (file, from/to index); without ``data``, what the metadata
+    says of itself (from/to index against the lengths, each row in the file it names)."""
     problems = []
     files = [str(p.relative_to(root)) for p in parquet_files(root, DATA_DIR)]
     episodes = column_to_numpy(meta.column("episode_index")).astype(np.int64)
@@ -429,6 +436,8 @@ def _check_locations(root: Path, info: dict, meta: pa.Table, data: pa.Table) -> 
         if bad:
             problems.append(Problem("counts", "meta/episodes meta/episodes/file_index", "episode(s) " + _listed(bad)
                                     + f": metadata rows are not in the file they name (swapped files?); {REPAIR_HINT}"))
+    if data is None:
+        return problems
     data_file = column_to_numpy(data.column("__file")).astype(np.int64)
     first_row = starts
     wrong = []
@@ -589,12 +598,9 @@ def _check_stats(root: Path, info: dict, meta_full: pa.Table, data: pa.Table) ->
         problems.append(Problem("stats", f"meta/episodes stats/{what.replace(' ', '/')}", f"episode(s) {_listed(eps)} "
                                 "disagree with their frames; the statistics (used to normalise policy inputs) or "
                                 f"the frames were altered: {REPAIR_HINT} rewrites the statistics"))
-    path = root / "meta" / "stats.json"
-    try:
-        stats = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as e:
-        return problems + [Problem("stats", "meta/stats.json", f"missing or not JSON ({type(e).__name__}); LeRobot "
-                                                               f"normalises with it: {REPAIR_HINT} rewrites it")]
+    stats, unreadable = _read_stats_file(root)
+    if unreadable:
+        return problems + unreadable
     wrong = []
     for k, a in agg.items():
         if not a["n"]:
@@ -612,6 +618,20 @@ def _check_stats(root: Path, info: dict, meta_full: pa.Table, data: pa.Table) ->
         problems.append(Problem("stats", "meta/stats.json", f"{_listed(wrong)} disagree with the frames of the "
                                 "dataset; policies normalise with these: " + REPAIR_HINT + " rewrites them"))
     return problems
+
+
+def _read_stats_file(root: Path) -> tuple[dict, list[Problem]]:
+    """(meta/stats.json, []) or ({}, the problem that it is missing or not JSON)."""
+    try:
+        stats = json.loads((root / "meta" / "stats.json").read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        return {}, [Problem("stats", "meta/stats.json", f"missing or not JSON ({type(e).__name__}); LeRobot "
+                                                        f"normalises with it: {REPAIR_HINT} rewrites it")]
+    return stats, []
+
+
+def _check_stats_file(root: Path) -> list[Problem]:
+    return _read_stats_file(root)[1]
 
 
 def _check_sidecar(root: Path, side: dict, meta: pa.Table) -> list[Problem]:
