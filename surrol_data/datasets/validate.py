@@ -39,6 +39,7 @@ from surrol_data.datasets.reader import (
     INFO_PATH,
     DatasetError,
     column_to_numpy,
+    episode_rows,
     load_info,
     parquet_files,
 )
@@ -127,9 +128,7 @@ def _read_files(root: Path, frames: bool) -> tuple[list[Problem], list[tuple[Pat
                 elif sub == DATA_DIR:
                     out.append((path, pq.read_metadata(path)))
                 else:   # the per-episode statistics (most of the file) are checked against the frames only
-                    pf = pq.ParquetFile(path)
-                    out.append((path, pf.read(columns=[n for n in pf.schema_arrow.names
-                                                       if not n.startswith("stats/")])))
+                    out.append((path, episode_rows(path)))
             except Exception as e:  # noqa: BLE001 - whatever pyarrow raises is the finding
                 problems.append(Problem("parquet", str(path.relative_to(root)),
                                         f"cannot be read ({type(e).__name__}: {str(e)[:120]}): truncated, "
