@@ -7,10 +7,12 @@ goals, 5-D actions, ``--steps`` frames, the length of an oracle NeedlePick episo
 :class:`~surrol_data.datasets.recorder.DatasetRecorder` (journal, checkpoints, seals: the files a collection writes),
 with provenance spread over two skills and four operators so that ``filter`` and ``split`` have groups to pick.
 Then each command runs once as the real ``surrol-data`` CLI in a fresh process (its imports included) and is timed
-from outside: ``info`` (its input check included), ``validate --no-reward`` (the synthesised rewards are not the task's, so the reward check,
-which replays the task's reward function, is left out; LeRobot's own load is included), ``info`` again (the same
-bytes: the input check's verdict is remembered), ``filter --where`` keeping half, ``split``. Also the size of ``meta/episodes`` per episode. Targets (issue 30): info ≤ 5 s; validate, filter and
-split ≥ 200 episodes/s.
+from outside: ``info`` on the fresh dataset (its input check included: the metadata checks, no frame read),
+``validate --no-reward`` (the synthesised rewards are not the task's, so the reward check, which replays the task's
+reward function, is left out; LeRobot's own load is included), ``info`` again (a warm disk cache),
+``filter --where`` keeping half (the frame checks of its input included: the first command after ``validate``
+finds the verdict remembered), ``split``. Also the size of ``meta/episodes`` per episode. Targets (issue 30):
+info ≤ 5 s; validate, filter and split ≥ 200 episodes/s.
 """
 
 from __future__ import annotations
@@ -81,7 +83,7 @@ def main() -> None:
         build_s = float("nan")
         existing = root / "meta" / "info.json"
         # the commands' own check remembers what passed (surrol_data.datasets.validated_cache): start from a fresh
-        # memory, so the first `info` pays the checks as it would after a collection
+        # memory, as after a collection
         os.environ["XDG_CACHE_HOME"] = str(tmp / "cache")
         if not (existing.exists() and json.loads(existing.read_text())["total_episodes"] == args.episodes):
             if root.exists():
@@ -90,9 +92,9 @@ def main() -> None:
         meta_bytes = sum(p.stat().st_size for p in (root / "meta" / "episodes").rglob("*.parquet"))
         n = args.episodes
         rows = [
-            ("info (first: runs the checks)", timed(["info", str(root)]), None),
+            ("info (first, on the fresh dataset)", timed(["info", str(root)]), None),
             ("validate --no-reward", timed(["validate", str(root), "--no-reward"]), n),
-            ("info (again: same bytes, verdict remembered)", timed(["info", str(root)]), None),
+            ("info (again)", timed(["info", str(root)]), None),
             ("filter --where 'skill == \"expert\"'", timed(["filter", str(root), "--out", str(tmp / "expert"),
                                                              "--where", 'skill == "expert"']), n),
             ("split", timed(["split", str(root), "--out", str(tmp / "split")]), n),

@@ -394,7 +394,7 @@ def info(dataset: Path = typer.Argument(..., help="Dataset folder.")):
 
     try:
         with _working(f"checking and summarising {dataset} ..."), _disk_full_is_an_error(dataset):
-            summary = render_info(require_valid(dataset, _note), label=dataset)
+            summary = render_info(require_valid(dataset, _note, frames=False), label=dataset)
         console.print(summary)
     except DatasetError as e:
         _fail(str(e))

@@ -9,6 +9,7 @@
 2. :func:`require_valid`: the cheap checks of :func:`surrol_data.datasets.validate.validate_dataset` (no env,
    no lerobot import, videos only demuxed); a damaged dataset is refused with the validator's own messages. A
    dataset whose bytes already passed them is not checked again (:mod:`validated_cache`: by content digest).
+   ``info``, which shows metadata only, asks for the metadata checks only (``frames=False``): no frame is read.
 
 Both return the folder to read: the dataset itself, or the repaired view of a read-only one.
 """
@@ -29,7 +30,7 @@ def _stderr(message: str) -> None:
 def ensure_finished(root: str | Path, notify: Callable[[str], None] = _stderr) -> Path:
     """Repair ``root`` if a killed recording left it unfinished (see the module doc); the folder to read."""
     from surrol_data.datasets.lock import writer_pid
-    from surrol_data.datasets.repair import is_unfinished, killed_recording, repair
+    from surrol_data.datasets.repair import killed_recording, repair
 
     root = Path(root)
     if not (root / "meta").is_dir():
@@ -38,7 +39,8 @@ def ensure_finished(root: str | Path, notify: Callable[[str], None] = _stderr) -
     if holder is not None:
         raise DatasetError(f"{root} is being written by another process (pid {holder or '?'}); wait until it "
                            "has finished")
-    reasons = is_unfinished(root)
+    reasons = killed_recording(root) + [f"{path.relative_to(root)} has no parquet footer"
+                                        for path in _footerless(root)]
     if not reasons:
         return root
     killed = killed_recording(root)
@@ -62,6 +64,28 @@ def ensure_finished(root: str | Path, notify: Callable[[str], None] = _stderr) -
     return target
 
 
+def _footerless(root: Path) -> list[Path]:
+    """Data / episodes parquet files that do not end in a parquet footer (cut short). Only the file's last 8 bytes
+    are read — parsing every footer cost seconds at 10,000 episodes; a footer damaged inside is found by the
+    checks that read the file."""
+    from surrol_data.datasets.reader import DATA_DIR, EPISODES_DIR, parquet_files
+
+    bad = []
+    for sub in (DATA_DIR, EPISODES_DIR):
+        for path in parquet_files(root, sub):
+            try:
+                with open(path, "rb") as fh:
+                    size = fh.seek(0, 2)
+                    fh.seek(max(size - 8, 0))
+                    tail = fh.read(8)
+                ok = size >= 12 and tail[4:] == b"PAR1" and int.from_bytes(tail[:4], "little") <= size - 12
+            except OSError:
+                ok = False
+            if not ok:
+                bad.append(path)
+    return bad
+
+
 def require_dataset_folder(root: str | Path) -> None:
     """DatasetError unless ``root`` is a folder with a ``meta/`` folder: a path that is not there (a typo, a
     dataset not recorded yet) is not "damaged", and ``repair`` cannot help it."""
@@ -76,19 +100,25 @@ def require_dataset_folder(root: str | Path) -> None:
                            "that holds meta/ and data/")
 
 
-def require_valid(root: str | Path, notify: Callable[[str], None] = _stderr) -> Path:
+def require_valid(root: str | Path, notify: Callable[[str], None] = _stderr, *, frames: bool = True) -> Path:
     """:func:`require_dataset_folder`, :func:`ensure_finished`, then the cheap validation checks; DatasetError
-    listing every problem found. Returns the folder to read (see :func:`ensure_finished`)."""
+    listing every problem found. Returns the folder to read (see :func:`ensure_finished`).
+
+    ``frames=False`` (a command that shows the metadata only, ``info``): the checks of everything but the frames
+    (:func:`~surrol_data.datasets.validate.validate_dataset` with ``frames=False``: provenance and its seals,
+    counts, footers ...), run every time — they read no frame and hash nothing, so they stay fast at any size.
+    With frames, a dataset whose bytes already passed is not checked again (by content digest)."""
     from surrol_data.datasets.validate import validate_dataset
     from surrol_data.datasets.validated_cache import dataset_digest, known_valid, remember_valid
 
     require_dataset_folder(root)
     target = ensure_finished(root, notify)
-    digest = dataset_digest(target)
-    if known_valid(digest):   # these very bytes passed these very checks before
-        return target
-    problems = validate_dataset(target, check_reward=False, check_lerobot=False)
-    if not problems:
+    if frames:
+        digest = dataset_digest(target)
+        if known_valid(digest):   # these very bytes passed these very checks before
+            return target
+    problems = validate_dataset(target, check_reward=False, check_lerobot=False, frames=frames)
+    if frames and not problems:
         remember_valid(digest)
     if problems:
         listed = "\n  ".join(str(p) for p in problems)

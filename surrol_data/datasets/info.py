@@ -46,7 +46,7 @@ def read_sidecar(root: str | Path) -> dict:
         return {}
 
 
-def summarize(root: str | Path) -> dict:
+def summarize(root: str | Path, reader: DatasetReader | None = None) -> dict:
     """Totals, features and a per-(source, device, skill, operator_id) breakdown of a dataset.
 
     Keys: root, codebase_version, robot_type, fps, episodes, frames, duration_s (frames / fps), tasks,
@@ -56,7 +56,7 @@ def summarize(root: str | Path) -> dict:
     intervention sessions, per GROUP_BY group of operator the takeovers (see
     :func:`surrol_data.datasets.interventions.operator_interventions`), else [].
     """
-    reader = DatasetReader(root)
+    reader = reader or DatasetReader(root)
     info = reader.info
     eps = reader.episodes
     tasks = sorted(set(eps["task"])) if "task" in eps.columns else []
@@ -91,7 +91,34 @@ def summarize(root: str | Path) -> dict:
 SKILL_GROUP_BY = ("source", "skill")
 
 
-def skill_breakdown(root: str | Path) -> list[dict]:
+def _smoothness(reader: DatasetReader, episodes: list[int]) -> list[float]:
+    """LDLJ of each episode's tip path up to success — what :func:`~surrol_data.datasets.metrics.trajectory_proficiency`
+    reports without a device trace — from the three frame columns it needs, each data file read once (a Trajectory
+    and every metric per episode cost ~10 ms an episode)."""
+    from surrol_data.datasets.metrics import log_dimensionless_jerk, steps_to_success
+    from surrol_data.datasets.reader import column_to_numpy
+
+    if not episodes:
+        return []
+    tip, next_tip = "complementary_info.tip_position", "complementary_info.next_tip_position"
+    table = reader._read_episodes(episodes, [tip, next_tip, "next.success"])
+    n_arms = int(np.prod(reader.features[tip]["shape"])) // 3
+    ep_col = column_to_numpy(table.column("episode_index"))
+    tips = column_to_numpy(table.column(tip)).reshape(table.num_rows, n_arms, 3)
+    next_tips = column_to_numpy(table.column(next_tip)).reshape(table.num_rows, n_arms, 3)
+    success = column_to_numpy(table.column("next.success")).reshape(-1).astype(bool)
+    firsts, starts, counts = np.unique(ep_col, return_index=True, return_counts=True)
+    where = {int(e): (int(s), int(n)) for e, s, n in zip(firsts, starts, counts, strict=True)}
+    out = []
+    for ep in episodes:
+        start, n = where[int(ep)]
+        path = np.concatenate([tips[start:start + n], next_tips[start + n - 1:start + n]]).astype(np.float64)
+        k = steps_to_success(success[start:start + n])
+        out.append(log_dimensionless_jerk(path[: k + 1] if k > 0 else path))
+    return out
+
+
+def skill_breakdown(root: str | Path, reader: DatasetReader | None = None) -> list[dict]:
     """Proficiency per (source, skill): how demos of experts, novices and scripts differ.
 
     Per group: episodes, success_rate, and over the *successful* episodes the mean and std of steps to
@@ -100,17 +127,14 @@ def skill_breakdown(root: str | Path) -> list[dict]:
     clutch uses and ``regrasp_rate``, the fraction of episodes with more than one jaw closure (a grasp
     that was retried). Empty when the dataset has no provenance.
     """
-    from surrol_data.datasets.metrics import trajectory_proficiency
-
-    reader = DatasetReader(root)
+    reader = reader or DatasetReader(root)
     eps = reader.episodes
     if not {*SKILL_GROUP_BY, "success", "steps_to_success", "path_length_cm", "jaw_closures"} <= set(eps.columns):
         return []
     groups = []
     for key, rows in eps.groupby(list(SKILL_GROUP_BY), sort=True):
         ok = rows[rows["success"]]
-        ldlj = [trajectory_proficiency(t).log_dimensionless_jerk
-                for t in reader.trajectories([int(e) for e in ok["episode_index"]])] if len(ok) else []
+        ldlj = _smoothness(reader, [int(e) for e in ok["episode_index"]])
 
         def std(values):
             values = [float(v) for v in values if np.isfinite(v)]
@@ -141,7 +165,8 @@ def render_info(root: str | Path, label: str | Path | None = None):
     from rich.console import Group
     from rich.table import Table
 
-    s = summarize(root)
+    reader = DatasetReader(root)   # the episodes table read once for every part below
+    s = summarize(root, reader)
     if label is not None:  # the dataset the user named, when ``root`` is the repaired view of a read-only one
         s["root"] = str(label)
     totals = Table(title=f"Dataset {s['root']}", show_header=False)
@@ -190,7 +215,7 @@ def render_info(root: str | Path, label: str | Path | None = None):
         parts.append(groups)
         if s["interventions"]:
             parts.append(_interventions_table(s["interventions"]))
-        by_skill = skill_breakdown(root)
+        by_skill = skill_breakdown(root, reader)
         if by_skill:
             prof = Table(title="Proficiency by source and skill", box=box.SIMPLE_HEAD, pad_edge=False,
                          collapse_padding=True,

@@ -162,10 +162,9 @@ def copy_episodes(selection: list[tuple[str | Path, list[int]]], out: str | Path
     try:
         with recorder:
             for reader, (_, episodes) in zip(readers, selection, strict=True):
-                rows = reader.episodes.set_index("episode_index")
-                for ep in episodes:
-                    traj = reader.trajectory(ep, images=True)
-                    prov = {k: _plain(rows.at[int(ep), k]) for k in PROVENANCE_COLUMNS}
+                rows = {int(r["episode_index"]): r for r in reader.episodes.to_dict("records")}  # not .at per value
+                for ep, traj in _read_in_batches(reader, episodes):
+                    prov = {k: _plain(rows[ep][k]) for k in PROVENANCE_COLUMNS}
                     new_index = recorder.record(traj, prov)
                     _copy_trace(reader.root, int(ep), out, new_index)
                     provenance_of.append({"episode": new_index, "source_root": str(reader.root), "source_episode": int(ep)})
@@ -181,6 +180,18 @@ def copy_episodes(selection: list[tuple[str | Path, list[int]]], out: str | Path
     _write_json_atomic(out / SIDECAR_PATH, side)
     write_dataset_card(out)
     return out
+
+
+_BATCH = 500
+
+
+def _read_in_batches(reader: DatasetReader, episodes: list[int]):
+    """(episode, its Trajectory with images) of ``episodes`` in order, a few hundred at a time: one read of each
+    data file per batch instead of one per episode (a parquet footer parsed per episode cost ~5 ms), memory
+    bounded."""
+    for at in range(0, len(episodes), _BATCH):
+        batch = [int(e) for e in episodes[at:at + _BATCH]]
+        yield from zip(batch, reader.trajectories(batch, images=True), strict=True)
 
 
 def _without_duplicates(readers, selection):

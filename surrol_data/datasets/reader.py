@@ -107,6 +107,24 @@ def load_info(root: str | Path) -> dict:
     return info
 
 
+_EPISODE_ROWS: dict[tuple[str, int, int], pa.Table] = {}
+
+
+def episode_rows(path: Path) -> pa.Table:
+    """The rows of one ``meta/episodes`` file without its per-episode statistics (``stats/*``), remembered for this
+    process by the file's path, size and modification time: most of the cost of reading one is parsing its footer
+    (~230 column descriptions, ~4 ms), and a command reads each file twice — its input check, then its reader.
+    Raises what pyarrow raises on a damaged file."""
+    st = path.stat()
+    key = (str(path.resolve()), st.st_size, st.st_mtime_ns)
+    if key not in _EPISODE_ROWS:
+        pf = pq.ParquetFile(path)
+        if len(_EPISODE_ROWS) > 20_000:
+            _EPISODE_ROWS.clear()
+        _EPISODE_ROWS[key] = pf.read(columns=[n for n in pf.schema_arrow.names if not n.startswith("stats/")])
+    return _EPISODE_ROWS[key]
+
+
 def _check_readable(root: Path, bad: list[Path] | None = None) -> None:
     bad = unreadable_parquet_files(root) if bad is None else bad
     if bad:
@@ -206,11 +224,9 @@ class DatasetReader:
                     bad.append(path)
             for path in parquet_files(self.root, EPISODES_DIR):
                 try:
-                    pf = pq.ParquetFile(path)
+                    tables.append(episode_rows(path))
                 except (pa.ArrowInvalid, OSError):
                     bad.append(path)
-                    continue
-                tables.append(pf.read(columns=[n for n in pf.schema_arrow.names if not n.startswith("stats/")]))
             _check_readable(self.root, bad)
             self._meta = pa.concat_tables(tables, promote_options="default").sort_by("episode_index")
         self.episodes: pd.DataFrame = self._episodes_frame()
@@ -368,8 +384,11 @@ class DatasetReader:
             raise DatasetError(f"episode {ep}: {table.num_rows} frames in {self._data_path(self._episode_row(ep))}, "
                                f"metadata says {expected}; run `surrol-data repair {self.root}`")
         traj = self._trajectory_from(table)
-        if images:
-            traj.images = {cam: np.concatenate([f, f[-1:]]) for cam, f in self.frames(ep).items()}
+        return self._with_images(traj, ep) if images else traj
+
+    def _with_images(self, traj: Trajectory, ep: int) -> Trajectory:
+        """``traj`` with episode ``ep``'s camera frames; the image of s_T repeats the last one (not stored)."""
+        traj.images = {cam: np.concatenate([f, f[-1:]]) for cam, f in self.frames(ep).items()}
         return traj
 
     @property
@@ -395,8 +414,9 @@ class DatasetReader:
                                       length)
         return out
 
-    def trajectories(self, episodes: Iterable[int] | None = None) -> list[Trajectory]:
-        """Trajectories of ``episodes`` (all if None), in the order given, each data file read once."""
+    def trajectories(self, episodes: Iterable[int] | None = None, images: bool = False) -> list[Trajectory]:
+        """Trajectories of ``episodes`` (all if None), in the order given, each data file read once (``images``: as
+        :meth:`trajectory`)."""
         columns = [*_TRANSITION_COLUMNS.values(), *_TRAJECTORY_EXTRA, *self._event_columns()]
         self._require_features(columns)
         order = self.select() if episodes is None else [int(e) for e in episodes]
@@ -405,7 +425,8 @@ class DatasetReader:
         # rows are sorted by global index, so each episode is one contiguous block
         starts = {int(e): int(i) for e, i in zip(*np.unique(ep_col, return_index=True), strict=True)}
         counts = dict(zip(*np.unique(ep_col, return_counts=True), strict=True))
-        return [self._trajectory_from(table.slice(starts[ep], int(counts[ep]))) for ep in order]
+        trajectories = [self._trajectory_from(table.slice(starts[ep], int(counts[ep]))) for ep in order]
+        return [self._with_images(t, ep) for t, ep in zip(trajectories, order, strict=True)] if images else trajectories
 
     def transitions(self, episodes: Iterable[int] | None = None) -> dict[str, np.ndarray]:
         """Every (s_t, a_t, r_t, s_{t+1}) of ``episodes`` (all if None) as flat arrays, in dataset order.

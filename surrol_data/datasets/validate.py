@@ -39,9 +39,9 @@ from surrol_data.datasets.reader import (
     INFO_PATH,
     DatasetError,
     column_to_numpy,
+    episode_rows,
     load_info,
     parquet_files,
-    trajectory_from_table,
 )
 from surrol_data.datasets.seals import provenance_mismatches, trace_disagreements, video_mismatches
 from surrol_data.datasets.schema import (
@@ -95,22 +95,53 @@ STAGES = ("files", "provenance", "frames", "episodes", "statistics", "videos", "
 
 
 def validate_dataset(root: str | Path, *, check_reward: bool = True, check_lerobot: bool = True,
-                     check_videos: bool = True, progress: Callable[[str], None] | None = None) -> list[Problem]:
+                     check_videos: bool = True, frames: bool = True,
+                     progress: Callable[[str], None] | None = None) -> list[Problem]:
     """All problems found in the dataset at ``root`` (empty list: it is valid). See the module docstring.
 
-    ``progress`` is called with the name of each stage of :data:`STAGES` as it starts (for a progress bar).
-    Never raises on a damaged dataset: a check that fails unexpectedly is itself reported as a problem.
+    ``frames=False`` checks the metadata only — what ``info`` shows: format, every parquet footer, schema,
+    provenance and its seals, counts (the data files' row counts from their footers), tasks and sidecar — without
+    reading a frame (the ``frames``, ``episodes``, ``statistics`` and ``videos`` stages and the device traces are
+    left out). ``progress`` is called with the name of each stage of :data:`STAGES` as it starts (for a progress
+    bar). Never raises on a damaged dataset: a check that fails unexpectedly is itself reported as a problem.
     """
     root = Path(root)
     try:
-        return _validate(root, check_reward, check_lerobot, check_videos, progress or (lambda stage: None))
+        return _validate(root, check_reward and frames, check_lerobot and frames, check_videos and frames, frames,
+                         progress or (lambda stage: None))
     except Exception as e:  # noqa: BLE001 - the promise is a list of problems, never a traceback
         return [Problem("internal", str(root), f"validation stopped on {type(e).__name__}: {e}; the dataset is "
                                                f"damaged in a way no check names yet: try `surrol-data repair "
                                                f"{root}`")]
 
 
-def _validate(root: Path, check_reward: bool, check_lerobot: bool, check_videos: bool,
+def _read_files(root: Path, frames: bool) -> tuple[list[Problem], list[tuple[Path, pa.Table]], list[tuple[Path, object]]]:
+    """(problems, every meta/episodes file read whole, every data file read whole; when ``frames`` is False the
+    data files' footers only, and meta/episodes without its statistics). Each file is read once: the checks below work on these tables (re-reading each file per
+    check cost as much as the checks themselves)."""
+    problems, meta_files, data_files = [], [], []
+    for sub, out in ((EPISODES_DIR, meta_files), (DATA_DIR, data_files)):
+        for path in parquet_files(root, sub):
+            try:
+                if frames:
+                    out.append((path, pq.read_table(path)))
+                elif sub == DATA_DIR:
+                    out.append((path, pq.read_metadata(path)))
+                else:   # the per-episode statistics (most of the file) are checked against the frames only
+                    out.append((path, episode_rows(path)))
+            except Exception as e:  # noqa: BLE001 - whatever pyarrow raises is the finding
+                problems.append(Problem("parquet", str(path.relative_to(root)),
+                                        f"cannot be read ({type(e).__name__}: {str(e)[:120]}): truncated, "
+                                        f"overwritten or left by a killed writer; {REPAIR_HINT} to keep every "
+                                        "intact episode"))
+    return problems, meta_files, data_files
+
+
+def _schema_of(content) -> pa.Schema:
+    return content.schema if isinstance(content, pa.Table) else content.schema.to_arrow_schema()
+
+
+def _validate(root: Path, check_reward: bool, check_lerobot: bool, check_videos: bool, frames: bool,
               stage: Callable[[str], None]) -> list[Problem]:
     problems: list[Problem] = []
     stage("files")
@@ -120,35 +151,45 @@ def _validate(root: Path, check_reward: bool, check_lerobot: bool, check_videos:
         return [Problem("format", INFO_PATH, f"{e}")]
     problems += _check_info(info, read_sidecar(root))
     problems += _check_unfinished(root)
-    for sub in (DATA_DIR, EPISODES_DIR):
-        for path in parquet_files(root, sub):
-            why = _unreadable(path)
-            if why:
-                problems.append(Problem("parquet", str(path.relative_to(root)),
-                                        f"cannot be read ({why}): truncated, overwritten or left by a killed "
-                                        f"writer; {REPAIR_HINT} to keep every intact episode"))
+    unreadable, meta_files, data_files = _read_files(root, frames)
+    problems += unreadable
     if any(p.check == "parquet" for p in problems) or any(p.check == "format" for p in problems):
         return problems
-    if not parquet_files(root, EPISODES_DIR) or not parquet_files(root, DATA_DIR):
+    if not meta_files or not data_files:
         return problems + [Problem("format", str(root), f"no parquet files under {EPISODES_DIR}/ or {DATA_DIR}/: "
                                                         "the dataset holds no episode; record at least one")]
     schema_problems = _check_schema(info)
     if schema_problems:
         return problems + schema_problems
     stage("provenance")
-    meta_tables = []
-    for path in parquet_files(root, EPISODES_DIR):
-        table = pq.read_table(path)
-        meta_tables.append(table.append_column("__meta_file", pa.array([str(path.relative_to(root))] * table.num_rows)))
-    meta_full = pa.concat_tables(meta_tables, promote_options="default").sort_by("episode_index")
+    meta_tables = [table.append_column("__meta_file", pa.array([str(path.relative_to(root))] * table.num_rows))
+                   for path, table in meta_files]
+    try:
+        meta_full = pa.concat_tables(meta_tables, promote_options="default").sort_by("episode_index")
+    except (pa.ArrowInvalid, pa.ArrowTypeError) as e:
+        return problems + [Problem("provenance", f"{EPISODES_DIR}/", f"its files disagree on a column's type ({e}); "
+                                   "one type per column (use -1 / nan / '' for unknown): restore the edited file "
+                                   f"from a copy, or {REPAIR_HINT}")]
+    del meta_tables
     meta = meta_full.select([n for n in meta_full.column_names if not n.startswith("stats/")])
     provenance_problems = _check_provenance(meta)
     problems += provenance_problems
-    column_problems = _check_columns(root, info)
+    column_problems = _check_columns(root, info, data_files)
     if column_problems:
         return problems + column_problems
+    side = read_sidecar(root)
+    if not frames:
+        problems += _check_tasks(root, info, meta, None)
+        problems += _check_counts_from_footers(root, info, meta, data_files)
+        problems += _check_locations(root, info, meta, None)
+        problems += _check_stats_file(root)
+        problems += _check_sidecar(root, side, meta)
+        if not provenance_problems:
+            problems += _check_provenance_seals(meta, bool(side.get("seals")))
+        return problems
     stage("frames")
-    data = _read_data(root, info)
+    data = _read_data(info, data_files)
+    del data_files
     problems += _check_tasks(root, info, meta, data)
     count_problems = _check_counts(info, meta, data)
     problems += count_problems
@@ -161,7 +202,6 @@ def _validate(root: Path, check_reward: bool, check_lerobot: bool, check_videos:
         problems += _check_episodes(info, meta, data)
     stage("statistics")
     problems += _check_stats(root, info, meta_full, data)
-    side = read_sidecar(root)
     problems += _check_sidecar(root, side, meta)
     problems += _check_traces(root, meta, data)
     if not provenance_problems:  # a column of the wrong type or with nulls is reported once, above
@@ -254,22 +294,22 @@ def _check_provenance(meta: pa.Table) -> list[Problem]:
     return problems
 
 
-def _read_data(root: Path, info: dict) -> pa.Table:
-    """Every non-video frame column, plus ``__file``: the position of the file each row came from."""
+def _read_data(info: dict, data_files: list[tuple[Path, pa.Table]]) -> pa.Table:
+    """Every non-video frame column of the data files read, plus ``__file``: the position of the file each row
+    came from."""
     names = [k for k, ft in info["features"].items() if ft["dtype"] not in ("video", "image", "string")]
     tables = []
-    for i, path in enumerate(parquet_files(root, DATA_DIR)):
-        present = [n for n in names if n in pq.read_schema(path).names]
-        table = pq.read_table(path, columns=present)
+    for i, (_, table) in enumerate(data_files):
+        table = table.select([n for n in names if n in table.column_names])
         tables.append(table.append_column("__file", pa.array(np.full(table.num_rows, i, np.int64))))
     return pa.concat_tables(tables, promote_options="default").sort_by("index")
 
 
-def _check_columns(root: Path, info: dict) -> list[Problem]:
+def _check_columns(root: Path, info: dict, data_files: list[tuple[Path, object]]) -> list[Problem]:
     """Every data file stores each feature with the width info.json declares (and has every feature)."""
     problems = []
-    for path in parquet_files(root, DATA_DIR):
-        schema = pq.read_schema(path)
+    for path, content in data_files:
+        schema = _schema_of(content)
         for name, ft in info["features"].items():
             if ft["dtype"] in ("video", "string"):
                 continue
@@ -283,7 +323,9 @@ def _check_columns(root: Path, info: dict) -> list[Problem]:
             if pa.types.is_list(typ) or pa.types.is_large_list(typ):
                 # lerobot's own tools (aggregate_datasets, lerobot-edit-dataset) write vectors through pandas as
                 # variable-length lists: the same values, so accepted when every row holds the declared count
-                lengths = set(pc.list_value_length(pq.read_table(path, columns=[name]).column(0)).to_pylist())
+                column = (content.column(name) if isinstance(content, pa.Table)
+                          else pq.read_table(path, columns=[name]).column(0))
+                lengths = set(pc.list_value_length(column).to_pylist())
                 width = lengths.pop() if len(lengths) == 1 else f"{sorted(map(str, lengths))} (varying)"
             else:
                 width = typ.list_size if pa.types.is_fixed_size_list(typ) else 1
@@ -294,15 +336,6 @@ def _check_columns(root: Path, info: dict) -> list[Problem]:
                                         f"declares {list(ft['shape'])} but {path.relative_to(root)} stores {width} "
                                         "values per frame; info.json was edited: restore the shape"))
     return problems
-
-
-def _unreadable(path: Path) -> str:
-    """Why a parquet file cannot be read whole ("" if it can)."""
-    try:
-        pq.read_table(path)
-        return ""
-    except Exception as e:  # noqa: BLE001 - whatever pyarrow raises is the finding
-        return f"{type(e).__name__}: {str(e)[:120]}"
 
 
 def _check_info(info: dict, side: dict) -> list[Problem]:
@@ -329,7 +362,7 @@ def _check_info(info: dict, side: dict) -> list[Problem]:
 
 
 def _check_unfinished(root: Path) -> list[Problem]:
-    from surrol_data.datasets.repair import is_unfinished
+    from surrol_data.datasets.repair import killed_recording
     from surrol_data.datasets.lock import writer_pid
 
     holder = writer_pid(root)
@@ -338,10 +371,12 @@ def _check_unfinished(root: Path) -> list[Problem]:
                                                  "once the recording has finished")]
     return [Problem("unfinished", str(root), f"{why}: a recording was killed; {REPAIR_HINT} (our commands do it "
                                              "automatically) to keep every finished episode")
-            for why in is_unfinished(root) if "parquet footer" not in why]
+            for why in killed_recording(root)]   # files without a footer: the parquet check names each one
 
 
-def _check_tasks(root: Path, info: dict, meta: pa.Table, data: pa.Table) -> list[Problem]:
+def _check_tasks(root: Path, info: dict, meta: pa.Table, data: pa.Table | None) -> list[Problem]:
+    """meta/tasks.parquet against info.json and meta/episodes, and each frame's task_index (without ``data``: the
+    metadata only)."""
     path = root / "meta" / "tasks.parquet"
     try:
         tasks = pq.read_table(path).to_pandas()
@@ -363,6 +398,8 @@ def _check_tasks(root: Path, info: dict, meta: pa.Table, data: pa.Table) -> list
         if unknown:
             problems.append(Problem("tasks", "meta/tasks.parquet", f"lacks task(s) {unknown} that meta/episodes "
                                                                    f"names; {REPAIR_HINT}"))
+    if data is None:
+        return problems
     task_index = column_to_numpy(data.column("task_index")).astype(np.int64).reshape(-1)
     bad = np.flatnonzero((task_index < 0) | (task_index >= len(names)))
     if len(bad):
@@ -374,8 +411,9 @@ def _check_tasks(root: Path, info: dict, meta: pa.Table, data: pa.Table) -> list
     return problems
 
 
-def _check_locations(root: Path, info: dict, meta: pa.Table, data: pa.Table) -> list[Problem]:
-    """Each episode's rows are where meta/episodes says (file, from/to index)."""
+def _check_locations(root: Path, info: dict, meta: pa.Table, data: pa.Table | None) -> list[Problem]:
+    """Each episode's rows are where meta/episodes says (file, from/to index); without ``data``, what the metadata
+    says of itself (from/to index against the lengths, each row in the file it names)."""
     problems = []
     files = [str(p.relative_to(root)) for p in parquet_files(root, DATA_DIR)]
     episodes = column_to_numpy(meta.column("episode_index")).astype(np.int64)
@@ -397,6 +435,8 @@ def _check_locations(root: Path, info: dict, meta: pa.Table, data: pa.Table) -> 
         if bad:
             problems.append(Problem("counts", "meta/episodes meta/episodes/file_index", "episode(s) " + _listed(bad)
                                     + f": metadata rows are not in the file they name (swapped files?); {REPAIR_HINT}"))
+    if data is None:
+        return problems
     data_file = column_to_numpy(data.column("__file")).astype(np.int64)
     first_row = starts
     wrong = []
@@ -421,37 +461,33 @@ def _episode_slices(meta: pa.Table):
 
 def _check_episodes(info: dict, meta: pa.Table, data: pa.Table) -> list[Problem]:
     """Per episode: stored content hash, provenance metrics recomputed, actions in range, timestamps, duplicates."""
-    from surrol_data.datasets.metrics import trajectory_proficiency
-
     features = {k: v for k, v in info["features"].items() if k not in _LEROBOT_DEFAULT}
     numeric = {k: column_to_numpy(data.column(k)).reshape(data.num_rows, -1)
                for k, ft in features.items() if ft["dtype"] not in ("video", "image", "string")}
     prov = {name: meta.column(PROVENANCE_PREFIX + name).to_pylist() for name in PROVENANCE_COLUMNS
             if PROVENANCE_PREFIX + name in meta.column_names}
+    slices = _episode_slices(meta)
     hash_bad, dup, metric_bad = [], {}, {}
-    for row, (ep, start, length) in enumerate(_episode_slices(meta)):
-        frames = {k: v[start:start + length] for k, v in numeric.items()}
-        digest = content_hash(frames, features)
-        stored = prov.get("content_hash", [None] * (row + 1))[row]
+    stored_hashes = prov.get("content_hash", [None] * len(slices))
+    for row, (ep, start, length) in enumerate(slices):
+        digest = content_hash({k: v[start:start + length] for k, v in numeric.items()}, features)
+        stored = stored_hashes[row]
         if stored is not None and digest != stored:
             hash_bad.append(ep)
         dup.setdefault(stored or digest, []).append(ep)
-        try:
-            traj = trajectory_from_table(data.slice(start, length), info["features"])
-            prof = trajectory_proficiency(traj)
-        except Exception:  # noqa: BLE001 - malformed frames are reported by the other checks
+    computed = _recorded_metrics(info, data, numeric, [length for _, _, length in slices])
+    for name, values in computed.items():
+        if name not in prov:
             continue
-        computed = {"success": prof.success, "steps_to_success": prof.steps_to_success,
-                    "path_length_cm": prof.path_length_cm, "jaw_closures": prof.jaw_closures,
-                    "clutch_uses": prof.clutch_uses, "episode_steps": prof.steps}
-        for name, value in computed.items():
-            if name not in prov:
-                continue
-            stored_value = prov[name][row]
-            same = (np.isclose(stored_value, value, rtol=1e-4, atol=1e-4, equal_nan=True)
-                    if isinstance(value, float) else stored_value == value)
-            if not same:
-                metric_bad.setdefault(name, []).append(f"{ep} (stored {stored_value}, frames give {value})")
+        stored_values = prov[name]
+        if values.dtype.kind == "f":
+            stored_array = np.array([np.nan if v is None else v for v in stored_values], np.float64)
+            same = np.isclose(stored_array, values, rtol=1e-4, atol=1e-4, equal_nan=True)
+        else:
+            same = np.array([v == c for v, c in zip(stored_values, values.tolist(), strict=True)], bool)
+        for row in np.flatnonzero(~same):
+            metric_bad.setdefault(name, []).append(f"{slices[row][0]} (stored {stored_values[row]}, frames give "
+                                                   f"{values[row].item()})")
     problems = []
     if hash_bad:
         problems.append(Problem("values", "meta/episodes provenance/content_hash", f"episode(s) {_listed(hash_bad)}: "
@@ -487,7 +523,43 @@ def _check_episodes(info: dict, meta: pa.Table, data: pa.Table) -> list[Problem]
     return problems
 
 
+def _recorded_metrics(info: dict, data: pa.Table, numeric: dict, lengths: list[int]) -> dict[str, np.ndarray]:
+    """The proficiency metrics stored with each episode, recomputed from the frames (empty when a column they need
+    is missing or malformed: the other checks report that)."""
+    from surrol_data.datasets.episode_metrics import recorded_metrics
+
+    features = info["features"]
+    needed = ("next.success", "action", "complementary_info.tip_position", "complementary_info.next_tip_position",
+              "complementary_info.jaw_angle", "complementary_info.clutch")
+    if any(name not in numeric for name in needed):
+        return {}
+    try:
+        return recorded_metrics(np.asarray(lengths, np.int64), numeric["next.success"], numeric["action"],
+                                numeric["complementary_info.tip_position"],
+                                numeric["complementary_info.next_tip_position"], numeric["complementary_info.clutch"],
+                                n_arms=int(np.prod(features["complementary_info.jaw_angle"]["shape"])))
+    except (ValueError, IndexError):
+        return {}
+
+
 _STAT_TOL = dict(rtol=1e-3, atol=1e-4)
+
+
+def _stored_stat(column: list, row: int, value: np.ndarray) -> bool:
+    stored = column[row]
+    return stored is not None and np.allclose(np.asarray(stored, np.float64).reshape(-1), value, **_STAT_TOL)
+
+
+def _stored_stats_agree(meta_full: pa.Table, col: str, rows: np.ndarray, got: np.ndarray) -> np.ndarray:
+    """Per row of ``rows``: whether the stored ``col`` equals ``got`` (one row per entry of ``rows``)."""
+    column = meta_full.column(col)
+    if not column.null_count:
+        stored = column_to_numpy(column)
+        stored = stored.reshape(len(stored), -1) if stored.size else stored.reshape(len(stored), 0)
+        if stored.shape[1] == got.shape[1]:
+            return np.isclose(stored[rows], got, **_STAT_TOL).all(axis=1)
+    values = column.to_pylist()   # nulls or other widths: one row at a time
+    return np.array([_stored_stat(values, int(r), g) for r, g in zip(rows, got, strict=True)], bool)
 
 
 def _check_stats(root: Path, info: dict, meta_full: pa.Table, data: pa.Table) -> list[Problem]:
@@ -496,35 +568,38 @@ def _check_stats(root: Path, info: dict, meta_full: pa.Table, data: pa.Table) ->
     floats = [k for k, ft in info["features"].items() if ft["dtype"].startswith("float") and k in data.column_names]
     bad_episode: dict[str, list[int]] = {}
     agg: dict[str, dict] = {}
-    arrays = {k: column_to_numpy(data.column(k)).reshape(data.num_rows, -1).astype(np.float64) for k in floats}
-    stored_stats = {c: meta_full.column(c).to_pylist() for c in meta_full.column_names if c.startswith("stats/")}
-    for row, (ep, start, length) in enumerate(_episode_slices(meta_full)):
-        for k in floats:
-            values = arrays[k][start:start + length]
-            if not len(values) or not np.isfinite(values).all():
-                continue
-            got = {"min": values.min(0), "max": values.max(0), "mean": values.mean(0)}
-            for stat, value in got.items():
-                col = f"stats/{k}/{stat}"
-                if col not in stored_stats:
-                    continue
-                stored = stored_stats[col][row]
-                if stored is None or not np.allclose(np.asarray(stored, np.float64).reshape(-1), value, **_STAT_TOL):
-                    bad_episode.setdefault(f"{k} {stat}", []).append(ep)
-            a = agg.setdefault(k, {"min": got["min"], "max": got["max"], "sum": np.zeros_like(got["mean"]), "n": 0})
-            a["min"], a["max"] = np.minimum(a["min"], got["min"]), np.maximum(a["max"], got["max"])
-            a["sum"] = a["sum"] + values.sum(0)
-            a["n"] += length
+    slices = _episode_slices(meta_full)
+    episodes = np.array([ep for ep, _, _ in slices], np.int64)
+    starts = np.array([start for _, start, _ in slices], np.int64)
+    lengths = np.array([length for _, _, length in slices], np.int64)
+    rows = np.flatnonzero(lengths > 0)
+    for k in floats:
+        values = column_to_numpy(data.column(k)).reshape(data.num_rows, -1).astype(np.float64)
+        if not len(rows):
+            continue
+        # episodes are contiguous blocks of rows: one reduceat per statistic instead of a loop over episodes
+        finite = np.logical_and.reduceat(np.isfinite(values).all(axis=1), starts[rows])
+        sums = np.add.reduceat(values, starts[rows], axis=0)
+        got = {"min": np.minimum.reduceat(values, starts[rows], axis=0),
+               "max": np.maximum.reduceat(values, starts[rows], axis=0),
+               "mean": sums / lengths[rows, None]}
+        checked = rows[finite]   # an episode with NaN / inf is reported by the values check
+        for stat, value in got.items():
+            col = f"stats/{k}/{stat}"
+            if col in meta_full.column_names and len(checked):
+                agree = _stored_stats_agree(meta_full, col, checked, value[finite])
+                if not agree.all():
+                    bad_episode.setdefault(f"{k} {stat}", []).extend(episodes[checked[~agree]].tolist())
+        if len(checked):
+            agg[k] = {"min": got["min"][finite].min(0), "max": got["max"][finite].max(0),
+                      "sum": sums[finite].sum(0), "n": int(lengths[checked].sum())}
     for what, eps in bad_episode.items():
         problems.append(Problem("stats", f"meta/episodes stats/{what.replace(' ', '/')}", f"episode(s) {_listed(eps)} "
                                 "disagree with their frames; the statistics (used to normalise policy inputs) or "
                                 f"the frames were altered: {REPAIR_HINT} rewrites the statistics"))
-    path = root / "meta" / "stats.json"
-    try:
-        stats = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as e:
-        return problems + [Problem("stats", "meta/stats.json", f"missing or not JSON ({type(e).__name__}); LeRobot "
-                                                               f"normalises with it: {REPAIR_HINT} rewrites it")]
+    stats, unreadable = _read_stats_file(root)
+    if unreadable:
+        return problems + unreadable
     wrong = []
     for k, a in agg.items():
         if not a["n"]:
@@ -542,6 +617,20 @@ def _check_stats(root: Path, info: dict, meta_full: pa.Table, data: pa.Table) ->
         problems.append(Problem("stats", "meta/stats.json", f"{_listed(wrong)} disagree with the frames of the "
                                 "dataset; policies normalise with these: " + REPAIR_HINT + " rewrites them"))
     return problems
+
+
+def _read_stats_file(root: Path) -> tuple[dict, list[Problem]]:
+    """(meta/stats.json, []) or ({}, the problem that it is missing or not JSON)."""
+    try:
+        stats = json.loads((root / "meta" / "stats.json").read_text())
+    except (OSError, json.JSONDecodeError) as e:
+        return {}, [Problem("stats", "meta/stats.json", f"missing or not JSON ({type(e).__name__}); LeRobot "
+                                                        f"normalises with it: {REPAIR_HINT} rewrites it")]
+    return stats, []
+
+
+def _check_stats_file(root: Path) -> list[Problem]:
+    return _read_stats_file(root)[1]
 
 
 def _check_sidecar(root: Path, side: dict, meta: pa.Table) -> list[Problem]:
@@ -706,6 +795,39 @@ def _check_counts(info: dict, meta: pa.Table, data: pa.Table) -> list[Problem]:
             bad = np.unique(data_episodes[frame != expected])
             problems.append(Problem("counts", "data/ frame_index", f"episode(s) {_listed(bad)}: frame_index is not "
                                                                    "0..T-1 in order"))
+    return problems
+
+
+def _check_counts_from_footers(root: Path, info: dict, meta: pa.Table, data_files: list) -> list[Problem]:
+    """:func:`_check_counts` without reading a frame: info.json totals and meta/episodes against each other, and
+    the frames each data file holds (its footer's row count) against the episodes that meta/episodes puts in it."""
+    problems = []
+    episodes = column_to_numpy(meta.column("episode_index")).astype(np.int64)
+    lengths = column_to_numpy(meta.column("length")).astype(np.int64)
+    total_episodes, total_frames = int(info.get("total_episodes", -1)), int(info.get("total_frames", -1))
+    stored = {str(path.relative_to(root)): content.num_rows for path, content in data_files}
+    if total_episodes != len(episodes):
+        problems.append(Problem("counts", "meta/info.json total_episodes",
+                                f"says {total_episodes}, meta/episodes has {len(episodes)} rows; "
+                                f"{REPAIR_HINT} to rewrite info.json from the episodes that are complete"))
+    if total_frames != sum(stored.values()):
+        problems.append(Problem("counts", "meta/info.json total_frames",
+                                f"says {total_frames}, the data files hold {sum(stored.values())} frames; "
+                                f"{REPAIR_HINT}"))
+    if not np.array_equal(episodes, np.arange(len(episodes))):
+        problems.append(Problem("counts", "meta/episodes episode_index",
+                                f"not 0..{len(episodes) - 1} without gaps or repeats (got {_listed(episodes)}); "
+                                "rebuild the dataset with `surrol-data merge OUT DIR`"))
+    said: dict[str, int] = {}
+    for chunk, file, n in zip(column_to_numpy(meta.column("data/chunk_index")),
+                              column_to_numpy(meta.column("data/file_index")), lengths, strict=True):
+        rel = info["data_path"].format(chunk_index=int(chunk), file_index=int(file))
+        said[rel] = said.get(rel, 0) + int(n)
+    wrong = [f"{rel} (metadata {said.get(rel, 0)}, file {stored.get(rel, 0)})"
+             for rel in sorted(set(said) | set(stored)) if said.get(rel, 0) != stored.get(rel, 0)]
+    if wrong:
+        problems.append(Problem("counts", "meta/episodes length", "the frames of " + _listed(wrong) + " disagree "
+                                "with the episode lengths meta/episodes puts in those files; " + REPAIR_HINT))
     return problems
 
 
