@@ -10,7 +10,10 @@ The recorder needs four things lerobot 0.6 has no public API for (shared/docs/re
 * **cheap checkpoints**: :func:`close_files_and_continue` closes the open parquet writers and sets the writer
   state (``_latest_episode``, ``latest_episode``, ``episodes``) exactly as ``resume()`` leaves it;
 * **fast saves**: :func:`install_fast_save` guards ``dataset_writer.embed_images``, a per-row map that only
-  matters for ``image`` features.
+  matters for ``image`` features, and hands lerobot's ``_save_episode_data`` each episode's arrow table built
+  directly (:func:`fast_episode_table`) instead of through ``datasets.Dataset.from_dict``, whose per-call
+  fingerprint (a dill hash of the whole episode) cost more than the rest of ``save_episode``; the table is checked
+  equal to ``from_dict``'s (schema metadata included) once per feature set, else that set keeps ``from_dict``.
 
 and the tools use ``compute_stats.aggregate_stats`` / ``io_utils.write_stats`` (repair, upgrade),
 ``feature_utils.get_hf_features_from_features`` (upgrade) and ``aggregate.aggregate_datasets`` /
@@ -35,6 +38,7 @@ CHECKED_VERSIONS = ("0.6.1",)
 # (module, attribute path) of each internal relied on; tests/test_lerobot_compat.py checks them all.
 INTERNALS = (
     ("lerobot.datasets.dataset_writer", "embed_images"),
+    ("lerobot.datasets.dataset_writer", "datasets.Dataset.from_dict"),
     ("lerobot.datasets.dataset_writer", "DatasetWriter.close_writer"),
     ("lerobot.datasets.dataset_writer", "DatasetWriter.flush_pending_videos"),
     ("lerobot.datasets.dataset_metadata", "LeRobotDatasetMetadata.save_episode"),
@@ -109,14 +113,19 @@ def lerobot_dataset_class():
 
 
 def install_fast_save() -> None:
-    """Skip lerobot's per-row ``embed_images`` map for episodes without ``image`` features.
+    """Skip lerobot's per-row ``embed_images`` map for episodes without ``image`` features, and build each
+    episode's arrow table directly instead of through ``datasets.Dataset.from_dict`` (:class:`_FastDatasets`).
 
-    The guard calls the original whenever an episode has an ``image`` feature, so it stays correct for any
-    dataset written in the process; nothing is patched when lerobot no longer has the function.
+    The ``embed_images`` guard calls the original whenever an episode has an ``image`` feature, and the table
+    builder falls back to ``from_dict`` for any feature set it does not reproduce exactly, so both stay correct
+    for any dataset written in the process; nothing is patched when lerobot no longer has what they replace.
     """
     from lerobot.datasets import dataset_writer
 
     original = getattr(dataset_writer, "embed_images", None)
+    real_datasets = getattr(dataset_writer, "datasets", None)
+    if real_datasets is not None and not isinstance(real_datasets, _FastDatasets):
+        dataset_writer.datasets = _FastDatasets(real_datasets)
     if original is None or getattr(original, "_surrol_guard", False):
         return
     import datasets
@@ -128,6 +137,86 @@ def install_fast_save() -> None:
 
     embed_images_if_any._surrol_guard = True
     dataset_writer.embed_images = embed_images_if_any
+
+
+class _EpisodeTable:
+    """What lerobot 0.6.1's ``DatasetWriter._save_episode_data`` uses of the ``datasets.Dataset`` it builds from an
+    episode: ``len``, ``features`` (``embed_images``) and ``with_format("arrow")[:]`` (the arrow table it writes)."""
+
+    def __init__(self, table, features):
+        self._table, self.features = table, features
+
+    def __len__(self) -> int:
+        return self._table.num_rows
+
+    def with_format(self, kind: str):
+        if kind != "arrow":
+            raise LerobotIncompatible(f"lerobot asked an episode table for format {kind!r}; only 'arrow' is built")
+        return self
+
+    def __getitem__(self, key):
+        if key != slice(None):
+            raise LerobotIncompatible(f"lerobot indexed an episode table with {key!r}; only [:] is built")
+        return self._table
+
+
+class _FastDatasets:
+    """Stands in for the ``datasets`` module inside ``lerobot.datasets.dataset_writer`` (its only use there is
+    ``datasets.Dataset.from_dict`` on one episode): ``Dataset.from_dict`` returns an :class:`_EpisodeTable` of
+    :func:`fast_episode_table`'s table; every other attribute is the real module's."""
+
+    def __init__(self, real):
+        self._real = real
+        self._verified: dict[str, object] = {}   # repr(features) -> arrow schema, or None: use from_dict
+        self.Dataset = self
+
+    def __getattr__(self, name):
+        return getattr(self._real, name)
+
+    def from_dict(self, mapping, features=None, split=None, **kwargs):
+        key = repr(features)
+        schema = self._verified.get(key, False)
+        if schema is not False and schema is not None and not kwargs:
+            table = fast_episode_table(mapping, schema)
+            if table is not None:
+                return _EpisodeTable(table, features)
+        real = self._real.Dataset.from_dict(mapping, features=features, split=split, **kwargs)
+        if schema is False and features is not None and not kwargs:
+            # First episode with this feature set: keep the direct build only if it gives the very same table.
+            expected = real.with_format("arrow")[:]
+            ours = fast_episode_table(mapping, expected.schema)
+            same = ours is not None and ours.equals(expected, check_metadata=True)
+            self._verified[key] = expected.schema if same else None
+        return real
+
+
+def fast_episode_table(mapping: dict, schema):
+    """The arrow table of one episode (``mapping``: column -> (T, ...) array or list) with ``schema``, built with
+    pyarrow alone; None when a column is of a type not built here (images, nested lists, strings)."""
+    import pyarrow as pa
+
+    arrays = []
+    for field in schema:
+        if field.name not in mapping:
+            return None
+        values = mapping[field.name]
+        if pa.types.is_fixed_size_list(field.type):
+            child = field.type.value_type
+            if not (pa.types.is_floating(child) or pa.types.is_integer(child) or pa.types.is_boolean(child)):
+                return None
+            flat = np.asarray(values, dtype=child.to_pandas_dtype())
+            if flat.ndim != 2 or flat.shape[1] != field.type.list_size:
+                return None
+            arrays.append(pa.FixedSizeListArray.from_arrays(pa.array(flat.reshape(-1), type=child),
+                                                            field.type.list_size))
+        elif pa.types.is_floating(field.type) or pa.types.is_integer(field.type) or pa.types.is_boolean(field.type):
+            flat = np.asarray(values)
+            if flat.ndim != 1:
+                return None
+            arrays.append(pa.array(flat, type=field.type))
+        else:
+            return None
+    return pa.Table.from_arrays(arrays, schema=schema)
 
 
 def attach_episode_columns(ds, columns, batch: int = 1) -> None:
