@@ -126,6 +126,9 @@ def install_fast_save() -> None:
     real_datasets = getattr(dataset_writer, "datasets", None)
     if real_datasets is not None and not isinstance(real_datasets, _FastDatasets):
         dataset_writer.datasets = _FastDatasets(real_datasets)
+    hf = getattr(dataset_writer, "get_hf_features_from_features", None)
+    if hf is not None and not getattr(hf, "_surrol_cache", False):
+        dataset_writer.get_hf_features_from_features = _cached_hf_features(hf)
     if original is None or getattr(original, "_surrol_guard", False):
         return
     import datasets
@@ -137,6 +140,23 @@ def install_fast_save() -> None:
 
     embed_images_if_any._surrol_guard = True
     dataset_writer.embed_images = embed_images_if_any
+
+
+def _cached_hf_features(original):
+    """``get_hf_features_from_features`` remembered per feature set: lerobot rebuilds the ``datasets.Features`` of
+    the whole schema for every episode it saves (~3 ms), and only reads it."""
+    import json
+
+    cache: dict[str, object] = {}
+
+    def cached(features):
+        key = json.dumps(features, sort_keys=True, default=str)
+        if key not in cache:
+            cache[key] = original(features)
+        return cache[key]
+
+    cached._surrol_cache = True
+    return cached
 
 
 class _EpisodeTable:
@@ -263,6 +283,30 @@ def attach_episode_columns(ds, columns, batch: int = 1) -> None:
 
     meta._surrol_pending_stats = []
     meta.save_episode = save_episode_with_columns if batch == 1 else save_episode_batched
+    _remember_task_indices(meta)
+
+
+def _remember_task_indices(meta) -> None:
+    """``meta.get_task_index`` remembered while ``meta.tasks`` is the same table: lerobot's ``save_episode`` looks up
+    every frame's task in the pandas table (~0.1 ms each). A task's index never changes once given
+    (``save_episode_tasks`` only adds rows), so only found indices are remembered, and a new table empties the memo."""
+    original = getattr(meta, "get_task_index", None)
+    if original is None or getattr(original, "_surrol_memo", False):
+        return
+    memo: dict = {"tasks": None, "index": {}}
+
+    def get_task_index(task):
+        if memo["tasks"] is not meta.tasks:
+            memo["tasks"], memo["index"] = meta.tasks, {}
+        found = memo["index"].get(task)
+        if found is None:
+            found = original(task)
+            if found is not None:
+                memo["index"][task] = found
+        return found
+
+    get_task_index._surrol_memo = True
+    meta.get_task_index = get_task_index
 
 
 def write_episode_totals(ds) -> None:
