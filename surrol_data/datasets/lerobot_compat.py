@@ -9,7 +9,8 @@ The recorder needs four things lerobot 0.6 has no public API for (shared/docs/re
   (:func:`episode_buffer`) is lerobot's own ``add_frame`` accumulator;
 * **cheap checkpoints**: :func:`close_files_and_continue` closes the open parquet writers and sets the writer
   state (``_latest_episode``, ``latest_episode``, ``episodes``) exactly as ``resume()`` leaves it;
-* **fast saves**: :func:`install_fast_save` guards ``dataset_writer.embed_images``, a per-row map that only
+* **fast saves**: :func:`install_fast_save` computes the per-episode statistics of vector features with whole-array
+  numpy (:mod:`surrol_data.datasets.fast_stats`, bit for bit lerobot's, checked once per feature set), guards ``dataset_writer.embed_images``, a per-row map that only
   matters for ``image`` features, and hands lerobot's ``_save_episode_data`` each episode's arrow table built
   directly (:func:`fast_episode_table`) instead of through ``datasets.Dataset.from_dict``, whose per-call
   fingerprint (a dill hash of the whole episode) cost more than the rest of ``save_episode``; the table is checked
@@ -39,6 +40,8 @@ CHECKED_VERSIONS = ("0.6.1",)
 INTERNALS = (
     ("lerobot.datasets.dataset_writer", "embed_images"),
     ("lerobot.datasets.dataset_writer", "datasets.Dataset.from_dict"),
+    ("lerobot.datasets.dataset_writer", "get_hf_features_from_features"),
+    ("lerobot.datasets.dataset_writer", "compute_episode_stats"),
     ("lerobot.datasets.dataset_writer", "DatasetWriter.close_writer"),
     ("lerobot.datasets.dataset_writer", "DatasetWriter.flush_pending_videos"),
     ("lerobot.datasets.dataset_metadata", "LeRobotDatasetMetadata.save_episode"),
@@ -129,6 +132,9 @@ def install_fast_save() -> None:
     hf = getattr(dataset_writer, "get_hf_features_from_features", None)
     if hf is not None and not getattr(hf, "_surrol_cache", False):
         dataset_writer.get_hf_features_from_features = _cached_hf_features(hf)
+    stats = getattr(dataset_writer, "compute_episode_stats", None)
+    if stats is not None and not getattr(stats, "_surrol_fast", False):
+        dataset_writer.compute_episode_stats = _fast_episode_stats(stats)
     if original is None or getattr(original, "_surrol_guard", False):
         return
     import datasets
@@ -140,6 +146,47 @@ def install_fast_save() -> None:
 
     embed_images_if_any._surrol_guard = True
     dataset_writer.embed_images = embed_images_if_any
+
+
+def _fast_episode_stats(original):
+    """lerobot's ``compute_episode_stats`` through :func:`surrol_data.datasets.fast_stats.episode_stats` where it
+    applies; on the first episode of each feature set both run and the fast one is kept only if every statistic is
+    identical (values, dtypes, shapes)."""
+    from surrol_data.datasets.fast_stats import episode_stats
+
+    verified: dict[str, bool] = {}
+
+    def compute_episode_stats(episode_data, features, quantile_list=None):
+        if quantile_list is not None:
+            return original(episode_data, features, quantile_list)
+        key = repr(sorted((k, features[k]["dtype"]) for k in episode_data))
+        if verified.get(key) is False:
+            return original(episode_data, features)
+        fast = episode_stats(episode_data, features)
+        if fast is None:
+            return original(episode_data, features)
+        if key not in verified:
+            expected = original(episode_data, features)
+            verified[key] = same_stats(fast, expected)
+            return expected
+        return fast
+
+    compute_episode_stats._surrol_fast = True
+    return compute_episode_stats
+
+
+def same_stats(a: dict, b: dict) -> bool:
+    """Two ``{feature: {stat: array}}`` dicts hold the same keys in the same order and identical arrays."""
+    if list(a) != list(b):
+        return False
+    for key in a:
+        if list(a[key]) != list(b[key]):
+            return False
+        for stat, x in a[key].items():
+            y = b[key][stat]
+            if x.dtype != y.dtype or x.shape != y.shape or not np.array_equal(x, y, equal_nan=True):
+                return False
+    return True
 
 
 def _cached_hf_features(original):
