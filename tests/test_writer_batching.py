@@ -60,9 +60,15 @@ def test_episode_tables_are_built_without_datasets_from_dict(tmp_path, monkeypat
     assert len(calls) <= 1, f"datasets.Dataset.from_dict ran for {len(calls)} of 4 episodes"
     verified = [s for s in dataset_writer.datasets._verified.values() if s is not None]
     assert verified, "the direct table never matched from_dict's: every episode fell back to it"
+    stats_checks = dataset_writer.compute_episode_stats.verified
+    assert stats_checks and all(stats_checks.values()), \
+        "the fast per-episode stats differed from lerobot's: every episode fell back to compute_episode_stats"
 
     # The same episodes through lerobot's unpatched path give the same data file.
+    from lerobot.datasets import compute_stats
+
     monkeypatch.setattr(dataset_writer, "datasets", datasets)
+    monkeypatch.setattr(dataset_writer, "compute_episode_stats", compute_stats.compute_episode_stats)
     with DatasetRecorder(tmp_path / "slow", features=features, checkpoint_every=10, fast_save=False,
                          **RECORDER_ARGS) as rec:
         for i, t in enumerate(trajs):
@@ -70,5 +76,12 @@ def test_episode_tables_are_built_without_datasets_from_dict(tmp_path, monkeypat
     fast = pq.read_table(tmp_path / "fast" / "data" / "chunk-000" / "file-000.parquet")
     slow = pq.read_table(tmp_path / "slow" / "data" / "chunk-000" / "file-000.parquet")
     assert fast.equals(slow, check_metadata=True)
+    episodes = "meta/episodes/chunk-000/file-000.parquet"
+    stats = [c for c in pq.read_schema(tmp_path / "slow" / episodes).names if c.startswith("stats/")]
+    assert stats
+    fast_meta = pq.read_table(tmp_path / "fast" / episodes, columns=stats)
+    assert fast_meta.equals(pq.read_table(tmp_path / "slow" / episodes, columns=stats))   # quantiles included
+    stats_json = [(tmp_path / name / "meta" / "stats.json").read_text() for name in ("fast", "slow")]
+    assert stats_json[0] == stats_json[1]
     assert validate_dataset(tmp_path / "fast", check_reward=False) == []
     assert len(DatasetReader(tmp_path / "fast").episodes) == 4

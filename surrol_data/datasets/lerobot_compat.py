@@ -172,6 +172,7 @@ def _fast_episode_stats(original):
         return fast
 
     compute_episode_stats._surrol_fast = True
+    compute_episode_stats.verified = verified   # read by tests/test_writer_batching.py
     return compute_episode_stats
 
 
