@@ -39,6 +39,12 @@ def test_episode_stats_are_lerobots_bit_for_bit(T, seed):
     assert same_stats(ours, compute_episode_stats(ep, _features(ep)))
 
 
+@pytest.mark.parametrize("seed", [3, 4])
+def test_columns_without_a_constant_one_take_the_vectorised_edges_and_still_match(seed):
+    ep = {k: v for k, v in _episode(np.random.default_rng(seed), 40).items() if k not in ("constant", "narrow")}
+    assert same_stats(episode_stats(ep, _features(ep)), compute_episode_stats(ep, _features(ep)))
+
+
 def test_what_is_not_reproduced_is_left_to_lerobot():
     ep = {"x": np.ones((1, 3), np.float32)}                       # one frame: lerobot's basic-stats path
     assert episode_stats(ep, _features(ep)) is None

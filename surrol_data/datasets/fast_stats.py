@@ -27,50 +27,82 @@ BINS = 5000                                  # RunningQuantileStats' num_quantil
 
 def episode_stats(episode_data: dict, features: dict) -> dict | None:
     """``compute_episode_stats(episode_data, features)`` for an episode of numeric features, or None."""
-    stats = {}
+    batches, stats = {}, {}
     for key, data in episode_data.items():
         dtype = features[key]["dtype"]
         if dtype in {"string", "language"}:
             continue
         if dtype in {"image", "video"} or not isinstance(data, np.ndarray) or data.ndim not in (1, 2):
             return None
-        one = feature_stats(data)
-        if one is None:
+        batch = _prepared(data)
+        if batch is None:
             return None
-        stats[key] = one
+        batches[key] = batch
+        stats[key] = _moments(batch)
+    # The quantiles of every column of one dtype at once (column by column the arithmetic is the same).
+    for dtype in {b.dtype for b in batches.values()}:
+        keys = [k for k, b in batches.items() if b.dtype == dtype]
+        quantiles = _quantiles(np.concatenate([batches[k] for k in keys], axis=1),
+                               np.concatenate([stats[k]["min"] for k in keys]),
+                               np.concatenate([stats[k]["max"] for k in keys]))
+        if quantiles is None:
+            return None
+        first = 0
+        for k in keys:
+            width = batches[k].shape[1]
+            cut = slice(first, first + width)
+            for q, (plain, edge, value) in zip(QUANTILES, quantiles):
+                # lerobot gathers one scalar per column with np.array: the edges' dtype when every column of the
+                # feature returned its bin edge, float64 as soon as one was interpolated
+                stats[k][f"q{int(q * 100):02d}"] = edge[cut].copy() if plain[cut].all() else value[cut].copy()
+            first += width
+    for key, data in episode_data.items():   # _reshape_stats_by_axis: a (T,) feature keeps a (1,) axis
+        if key in stats and data.ndim == 1:
+            stats[key] = {k: v if k == "count" else v.reshape(1) for k, v in stats[key].items()}
     return stats
 
 
-def feature_stats(data: np.ndarray) -> dict | None:
-    """``get_feature_stats(data, axis=0, keepdims=data.ndim == 1)`` of a (T,) or (T, D) array, or None."""
+def _prepared(data: np.ndarray) -> np.ndarray | None:
+    """The (n, D) batch RunningQuantileStats.update works on, or None where lerobot takes another path."""
     batch = data.reshape(-1, 1) if data.ndim == 1 else data
-    n = batch.shape[0]
-    if n < 2 or batch.dtype.kind not in "biuf":
+    if batch.shape[0] < 2 or batch.dtype.kind not in "biuf":
         return None
     batch = batch.astype(np.result_type(batch.dtype, np.float32), copy=False)
-    if not np.isfinite(batch).all():
-        return None
-    # RunningQuantileStats.update on its first batch, then get_statistics
+    return batch if np.isfinite(batch).all() else None
+
+
+def _moments(batch: np.ndarray) -> dict:
+    """RunningQuantileStats.update on its first batch, then get_statistics, less the quantiles."""
+    n = batch.shape[0]
     mean = np.mean(batch, axis=0)
     mean_sq = np.mean(batch**2, axis=0)
     lo, hi = np.min(batch, axis=0), np.max(batch, axis=0)
     mean += (np.mean(batch, axis=0) - mean) * (n / n)
     mean_sq += (np.mean(batch**2, axis=0) - mean_sq) * (n / n)
-    stats = {"min": lo.copy(), "max": hi.copy(), "mean": mean.copy(),
-             "std": np.sqrt(np.maximum(0, mean_sq - mean**2)), "count": np.array([n])}
-    quantiles = _quantiles(batch, lo, hi, n)
-    if quantiles is None:
-        return None
-    for q, values in zip(QUANTILES, quantiles):
-        stats[f"q{int(q * 100):02d}"] = values
-    if data.ndim == 1:   # _reshape_stats_by_axis: a (T,) feature keeps a (1,) axis
-        stats = {k: v if k == "count" else v.reshape(1) for k, v in stats.items()}
-    return stats
+    return {"min": lo.copy(), "max": hi.copy(), "mean": mean.copy(),
+            "std": np.sqrt(np.maximum(0, mean_sq - mean**2)), "count": np.array([n])}
 
 
-def _quantiles(batch: np.ndarray, lo: np.ndarray, hi: np.ndarray, n: int) -> list[np.ndarray] | None:
-    columns = batch.shape[1]
-    edges = np.stack([np.linspace(lo[i] - 1e-10, hi[i] + 1e-10, BINS + 1) for i in range(columns)])
+def _edges(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Each column's ``np.linspace(lo - 1e-10, hi + 1e-10, BINS + 1)``, as rows. One vectorised call gives the same
+    values as one call per column as long as no step is 0 (linspace then switches every column to another formula),
+    so the columns with a zero step (a constant column whose padding vanished in float32) get one call each."""
+    start, stop = lo - 1e-10, hi + 1e-10
+    zero = np.subtract(stop, start) / BINS == 0
+    if not zero.any():
+        return np.linspace(start, stop, BINS + 1, axis=-1)
+    edges = np.empty((len(lo), BINS + 1), dtype=np.result_type(start, stop, 1.0))
+    if not zero.all():
+        edges[~zero] = np.linspace(start[~zero], stop[~zero], BINS + 1, axis=-1)
+    for i in np.flatnonzero(zero):
+        edges[i] = np.linspace(start[i], stop[i], BINS + 1)
+    return edges
+
+
+def _quantiles(batch: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> list[tuple] | None:
+    """Per quantile: which columns lerobot answers with a bin edge, those edges, and every column's float64 value."""
+    n, columns = batch.shape
+    edges = _edges(lo, hi)
     if edges.dtype != batch.dtype or (edges[:, :-1] > edges[:, 1:]).any():
         return None   # np.histogram would compare in another dtype, or refuse the bins
     ordered = np.sort(batch, axis=0)
@@ -88,8 +120,5 @@ def _quantiles(batch: np.ndarray, lo: np.ndarray, hi: np.ndarray, n: int) -> lis
         with np.errstate(divide="ignore", invalid="ignore"):
             fraction = (target - before) / in_bin
             interpolated = low_edge + fraction * (high_edge - low_edge)
-        if plain.all():
-            results.append(low_edge.copy())                         # np.array of edge scalars keeps their dtype
-        else:
-            results.append(np.where(plain, low_edge.astype(np.float64), interpolated))
+        results.append((plain, low_edge, np.where(plain, low_edge.astype(np.float64), interpolated)))
     return results
