@@ -64,9 +64,9 @@ def main() -> None:
     rec_mean = statistics.mean(record_s[1:])   # the first carries one-off checks (fast_save's) and file creation
     print(f"{args.task}, {args.episodes} episodes, {'lerobot unpatched' if args.slow else 'fast_save'}: "
           f"rollout {roll * 1000:.1f} ms CPU/episode; record {rec_mean * 1000:.1f} ms CPU/episode "
-          f"(median {statistics.median(record_s[1:]) * 1000:.1f} ms, checkpoints included; first {record_s[0] * 1000:.0f} "
-          f"ms); open {open_s:.2f} s CPU (lerobot's import); rollout / (rollout + record) = "
-          f"{roll / (roll + rec_mean):.2f}")
+          f"(median {statistics.median(record_s[1:]) * 1000:.1f} ms, checkpoints included; "
+          f"first {record_s[0] * 1000:.0f} ms); open {open_s:.2f} s CPU (lerobot's import); "
+          f"rollout / (rollout + record) = {roll / (roll + rec_mean):.2f}")
 
 
 if __name__ == "__main__":

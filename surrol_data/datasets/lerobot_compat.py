@@ -9,12 +9,14 @@ The recorder needs four things lerobot 0.6 has no public API for (shared/docs/re
   (:func:`episode_buffer`) is lerobot's own ``add_frame`` accumulator;
 * **cheap checkpoints**: :func:`close_files_and_continue` closes the open parquet writers and sets the writer
   state (``_latest_episode``, ``latest_episode``, ``episodes``) exactly as ``resume()`` leaves it;
-* **fast saves**: :func:`install_fast_save` computes the per-episode statistics of vector features with whole-array
-  numpy (:mod:`surrol_data.datasets.fast_stats`, bit for bit lerobot's, checked once per feature set), guards ``dataset_writer.embed_images``, a per-row map that only
-  matters for ``image`` features, and hands lerobot's ``_save_episode_data`` each episode's arrow table built
-  directly (:func:`fast_episode_table`) instead of through ``datasets.Dataset.from_dict``, whose per-call
-  fingerprint (a dill hash of the whole episode) cost more than the rest of ``save_episode``; the table is checked
-  equal to ``from_dict``'s (schema metadata included) once per feature set, else that set keeps ``from_dict``.
+* **fast saves**: :func:`install_fast_save` computes the per-episode statistics of vector features with
+  whole-array numpy (:mod:`surrol_data.datasets.fast_stats`, bit for bit lerobot's, checked once per feature set),
+  remembers the per-episode ``get_hf_features_from_features`` and the per-frame task lookups, guards
+  ``dataset_writer.embed_images``, a per-row map that only matters for ``image`` features, and hands lerobot's
+  ``_save_episode_data`` each episode's arrow table built directly (:func:`fast_episode_table`) instead of through
+  ``datasets.Dataset.from_dict``, whose per-call fingerprint (a dill hash of the whole episode) cost more than the
+  rest of ``save_episode``; the table is checked equal to ``from_dict``'s (schema metadata included) once per
+  feature set, else that set keeps ``from_dict``.
 
 and the tools use ``compute_stats.aggregate_stats`` / ``io_utils.write_stats`` (repair, upgrade),
 ``feature_utils.get_hf_features_from_features`` (upgrade) and ``aggregate.aggregate_datasets`` /
@@ -116,12 +118,13 @@ def lerobot_dataset_class():
 
 
 def install_fast_save() -> None:
-    """Skip lerobot's per-row ``embed_images`` map for episodes without ``image`` features, and build each
-    episode's arrow table directly instead of through ``datasets.Dataset.from_dict`` (:class:`_FastDatasets`).
+    """Skip lerobot's per-row ``embed_images`` map for episodes without ``image`` features, build each episode's
+    arrow table directly instead of through ``datasets.Dataset.from_dict`` (:class:`_FastDatasets`), compute the
+    statistics of vector features with :mod:`surrol_data.datasets.fast_stats` and remember the episode schema.
 
     The ``embed_images`` guard calls the original whenever an episode has an ``image`` feature, and the table
-    builder falls back to ``from_dict`` for any feature set it does not reproduce exactly, so both stay correct
-    for any dataset written in the process; nothing is patched when lerobot no longer has what they replace.
+    builder and the statistics fall back to lerobot's own for anything they do not reproduce exactly, so all stay
+    correct for any dataset written in the process; nothing is patched when lerobot no longer has what they replace.
     """
     from lerobot.datasets import dataset_writer
 
