@@ -60,3 +60,18 @@ def test_a_mismatch_is_caught():
     theirs = compute_episode_stats(ep, _features(ep))
     theirs["action"]["q50"] = theirs["action"]["q50"] + 1e-7
     assert not same_stats(ours, theirs)
+
+
+def test_the_guessed_bin_is_the_counted_one():
+    """The bin search guesses from the even spacing and checks exactly; on edges of every scale, values on an edge
+    and constant columns it gives the brute count lerobot's searchsorted gives."""
+    from surrol_data.datasets.fast_stats import _edges, _edges_at_or_below
+
+    rng = np.random.default_rng(7)
+    lo = rng.normal(size=3000).astype(np.float32)
+    scale = rng.choice([0.0, 1e-7, 1e-3, 1.0, 1e3], 3000).astype(np.float32)
+    hi = lo + np.abs(rng.normal(size=3000)).astype(np.float32) * scale
+    edges = _edges(lo, hi)
+    x = (lo + (hi - lo) * rng.random(3000)).astype(np.float32)
+    x[:300] = edges[np.arange(300), rng.integers(0, 5001, 300)]
+    assert (_edges_at_or_below(edges, x) == (edges <= x[:, None]).sum(axis=1)).all()

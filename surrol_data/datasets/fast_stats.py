@@ -111,7 +111,7 @@ def _quantiles(batch: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> list[tuple]
     for q in QUANTILES:
         target = q * n
         kth = ordered[math.ceil(target) - 1]                       # the k-th smallest value of each column
-        idx = np.minimum((edges <= kth[:, None]).sum(axis=1) - 1, BINS - 1)
+        idx = np.minimum(_edges_at_or_below(edges, kth) - 1, BINS - 1)
         low_edge, high_edge = edges[cols, idx], edges[cols, np.minimum(idx + 1, BINS)]
         before = (ordered < low_edge[None, :]).sum(axis=0).astype(np.float64)            # cumsum[idx - 1]
         through = np.where(idx < BINS - 1, (ordered < high_edge[None, :]).sum(axis=0), n).astype(np.float64)
@@ -122,3 +122,21 @@ def _quantiles(batch: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> list[tuple]
             interpolated = low_edge + fraction * (high_edge - low_edge)
         results.append((plain, low_edge, np.where(plain, low_edge.astype(np.float64), interpolated)))
     return results
+
+
+def _edges_at_or_below(edges: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Per row, how many of its (non-decreasing) edges are <= ``x[row]``: lerobot's ``searchsorted`` of the bins.
+
+    The edges are evenly spaced, so the answer is guessed from the spacing and then checked exactly against the two
+    edges around it; rows whose guess fails the check (rounding, a zero step) are counted edge by edge."""
+    rows = np.arange(len(x))
+    first, last = edges[:, 0].astype(np.float64), edges[:, -1].astype(np.float64)
+    with np.errstate(all="ignore"):
+        guess = np.floor((x.astype(np.float64) - first) / ((last - first) / BINS))
+    guess = np.clip(np.nan_to_num(guess, nan=0.0, posinf=BINS, neginf=0.0), 0, BINS).astype(np.int64)
+    ok = (edges[rows, guess] <= x) & ((guess == BINS) | (edges[rows, np.minimum(guess + 1, BINS)] > x))
+    count = guess + 1
+    if not ok.all():
+        bad = ~ok
+        count[bad] = (edges[bad] <= x[bad, None]).sum(axis=1)
+    return count
