@@ -55,8 +55,8 @@ instead of ``datasets.Dataset.from_dict`` (whose dill fingerprint of the episode
 statistics of vector features come from :mod:`surrol_data.datasets.fast_stats`, and lerobot's per-episode
 schema rebuild and per-frame task lookups are remembered; the files are identical to lerobot's own (each
 replacement is checked against lerobot's result on the first episode of every feature set, and falls back to it
-otherwise). CPU per NeedlePick script episode in ``record``: 66 ms before, 16 ms after, against 66 ms for the
-rollout itself (measured with ``time.process_time`` around ``record`` over 40 pre-rolled episodes).
+otherwise). CPU per NeedlePick script episode in ``record`` (``benchmarks/record_cpu.py``, see
+docs/benchmarks.md): ~76 ms before, ~14 ms after, against ~55-65 ms for the rollout itself.
 """
 
 from __future__ import annotations
