@@ -9,8 +9,14 @@ The recorder needs four things lerobot 0.6 has no public API for (shared/docs/re
   (:func:`episode_buffer`) is lerobot's own ``add_frame`` accumulator;
 * **cheap checkpoints**: :func:`close_files_and_continue` closes the open parquet writers and sets the writer
   state (``_latest_episode``, ``latest_episode``, ``episodes``) exactly as ``resume()`` leaves it;
-* **fast saves**: :func:`install_fast_save` guards ``dataset_writer.embed_images``, a per-row map that only
-  matters for ``image`` features.
+* **fast saves**: :func:`install_fast_save` computes the per-episode statistics of vector features with
+  whole-array numpy (:mod:`surrol_data.datasets.fast_stats`, bit for bit lerobot's, checked once per feature set),
+  remembers the per-episode ``get_hf_features_from_features`` and the per-frame task lookups, guards
+  ``dataset_writer.embed_images``, a per-row map that only matters for ``image`` features, and hands lerobot's
+  ``_save_episode_data`` each episode's arrow table built directly (:func:`fast_episode_table`) instead of through
+  ``datasets.Dataset.from_dict``, whose per-call fingerprint (a dill hash of the whole episode) cost more than the
+  rest of ``save_episode``; the table is checked equal to ``from_dict``'s (schema metadata included) once per
+  feature set, else that set keeps ``from_dict``.
 
 and the tools use ``compute_stats.aggregate_stats`` / ``io_utils.write_stats`` (repair, upgrade),
 ``feature_utils.get_hf_features_from_features`` (upgrade) and ``aggregate.aggregate_datasets`` /
@@ -35,6 +41,9 @@ CHECKED_VERSIONS = ("0.6.1",)
 # (module, attribute path) of each internal relied on; tests/test_lerobot_compat.py checks them all.
 INTERNALS = (
     ("lerobot.datasets.dataset_writer", "embed_images"),
+    ("lerobot.datasets.dataset_writer", "datasets.Dataset.from_dict"),
+    ("lerobot.datasets.dataset_writer", "get_hf_features_from_features"),
+    ("lerobot.datasets.dataset_writer", "compute_episode_stats"),
     ("lerobot.datasets.dataset_writer", "DatasetWriter.close_writer"),
     ("lerobot.datasets.dataset_writer", "DatasetWriter.flush_pending_videos"),
     ("lerobot.datasets.dataset_metadata", "LeRobotDatasetMetadata.save_episode"),
@@ -54,6 +63,7 @@ INTERNALS = (
 )
 
 _warned = False
+_frozen = False   # lerobot_dataset_class has frozen the objects alive after lerobot's import
 
 
 class UntestedLerobotWarning(RuntimeWarning):
@@ -102,21 +112,42 @@ def missing_internals() -> list[str]:
 
 def lerobot_dataset_class():
     """``LeRobotDataset``, imported on first use (~6 s, ~0.9 GB), after the version check."""
+    global _frozen
     check_lerobot()
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+    if not _frozen:
+        # lerobot brings torch, datasets and pandas: ~380,000 objects that live as long as the process, and every
+        # full collection of the cyclic GC walks them all (~250 ms, a few times per hundred recorded episodes).
+        # Frozen, the collector leaves them out (gc.freeze; they are still freed normally by reference counting).
+        import gc
+
+        gc.freeze()
+        _frozen = True
     return LeRobotDataset
 
 
 def install_fast_save() -> None:
-    """Skip lerobot's per-row ``embed_images`` map for episodes without ``image`` features.
+    """Skip lerobot's per-row ``embed_images`` map for episodes without ``image`` features, build each episode's
+    arrow table directly instead of through ``datasets.Dataset.from_dict`` (:class:`_FastDatasets`), compute the
+    statistics of vector features with :mod:`surrol_data.datasets.fast_stats` and remember the episode schema.
 
-    The guard calls the original whenever an episode has an ``image`` feature, so it stays correct for any
-    dataset written in the process; nothing is patched when lerobot no longer has the function.
+    The ``embed_images`` guard calls the original whenever an episode has an ``image`` feature, and the table
+    builder and the statistics fall back to lerobot's own for anything they do not reproduce exactly, so all stay
+    correct for any dataset written in the process; nothing is patched when lerobot no longer has what they replace.
     """
     from lerobot.datasets import dataset_writer
 
     original = getattr(dataset_writer, "embed_images", None)
+    real_datasets = getattr(dataset_writer, "datasets", None)
+    if real_datasets is not None and not isinstance(real_datasets, _FastDatasets):
+        dataset_writer.datasets = _FastDatasets(real_datasets)
+    hf = getattr(dataset_writer, "get_hf_features_from_features", None)
+    if hf is not None and not getattr(hf, "_surrol_cache", False):
+        dataset_writer.get_hf_features_from_features = _cached_hf_features(hf)
+    stats = getattr(dataset_writer, "compute_episode_stats", None)
+    if stats is not None and not getattr(stats, "_surrol_fast", False):
+        dataset_writer.compute_episode_stats = _fast_episode_stats(stats)
     if original is None or getattr(original, "_surrol_guard", False):
         return
     import datasets
@@ -128,6 +159,145 @@ def install_fast_save() -> None:
 
     embed_images_if_any._surrol_guard = True
     dataset_writer.embed_images = embed_images_if_any
+
+
+def _fast_episode_stats(original):
+    """lerobot's ``compute_episode_stats`` through :func:`surrol_data.datasets.fast_stats.episode_stats` where it
+    applies; on the first episode of each feature set both run and the fast one is kept only if every statistic is
+    identical (values, dtypes, shapes)."""
+    from surrol_data.datasets.fast_stats import episode_stats
+
+    verified: dict[str, bool] = {}
+
+    def compute_episode_stats(episode_data, features, quantile_list=None):
+        if quantile_list is not None:
+            return original(episode_data, features, quantile_list)
+        key = repr(sorted((k, features[k]["dtype"]) for k in episode_data))
+        if verified.get(key) is False:
+            return original(episode_data, features)
+        fast = episode_stats(episode_data, features)
+        if fast is None:
+            return original(episode_data, features)
+        if key not in verified:
+            expected = original(episode_data, features)
+            verified[key] = same_stats(fast, expected)
+            return expected
+        return fast
+
+    compute_episode_stats._surrol_fast = True
+    compute_episode_stats.verified = verified   # read by tests/test_writer_batching.py
+    return compute_episode_stats
+
+
+def same_stats(a: dict, b: dict) -> bool:
+    """Two ``{feature: {stat: array}}`` dicts hold the same keys in the same order and identical arrays."""
+    if list(a) != list(b):
+        return False
+    for key in a:
+        if list(a[key]) != list(b[key]):
+            return False
+        for stat, x in a[key].items():
+            y = b[key][stat]
+            if x.dtype != y.dtype or x.shape != y.shape or not np.array_equal(x, y, equal_nan=True):
+                return False
+    return True
+
+
+def _cached_hf_features(original):
+    """``get_hf_features_from_features`` remembered per feature set: lerobot rebuilds the ``datasets.Features`` of
+    the whole schema for every episode it saves (~3 ms), and only reads it."""
+    import json
+
+    cache: dict[str, object] = {}
+
+    def cached(features):
+        key = json.dumps(features, sort_keys=True, default=str)
+        if key not in cache:
+            cache[key] = original(features)
+        return cache[key]
+
+    cached._surrol_cache = True
+    return cached
+
+
+class _EpisodeTable:
+    """What lerobot 0.6.1's ``DatasetWriter._save_episode_data`` uses of the ``datasets.Dataset`` it builds from an
+    episode: ``len``, ``features`` (``embed_images``) and ``with_format("arrow")[:]`` (the arrow table it writes)."""
+
+    def __init__(self, table, features):
+        self._table, self.features = table, features
+
+    def __len__(self) -> int:
+        return self._table.num_rows
+
+    def with_format(self, kind: str):
+        if kind != "arrow":
+            raise LerobotIncompatible(f"lerobot asked an episode table for format {kind!r}; only 'arrow' is built")
+        return self
+
+    def __getitem__(self, key):
+        if key != slice(None):
+            raise LerobotIncompatible(f"lerobot indexed an episode table with {key!r}; only [:] is built")
+        return self._table
+
+
+class _FastDatasets:
+    """Stands in for the ``datasets`` module inside ``lerobot.datasets.dataset_writer`` (its only use there is
+    ``datasets.Dataset.from_dict`` on one episode): ``Dataset.from_dict`` returns an :class:`_EpisodeTable` of
+    :func:`fast_episode_table`'s table; every other attribute is the real module's."""
+
+    def __init__(self, real):
+        self._real = real
+        self._verified: dict[str, object] = {}   # repr(features) -> arrow schema, or None: use from_dict
+        self.Dataset = self
+
+    def __getattr__(self, name):
+        return getattr(self._real, name)
+
+    def from_dict(self, mapping, features=None, split=None, **kwargs):
+        key = repr(features)
+        schema = self._verified.get(key, False)
+        if schema is not False and schema is not None and not kwargs:
+            table = fast_episode_table(mapping, schema)
+            if table is not None:
+                return _EpisodeTable(table, features)
+        real = self._real.Dataset.from_dict(mapping, features=features, split=split, **kwargs)
+        if schema is False and features is not None and not kwargs:
+            # First episode with this feature set: keep the direct build only if it gives the very same table.
+            expected = real.with_format("arrow")[:]
+            ours = fast_episode_table(mapping, expected.schema)
+            same = ours is not None and ours.equals(expected, check_metadata=True)
+            self._verified[key] = expected.schema if same else None
+        return real
+
+
+def fast_episode_table(mapping: dict, schema):
+    """The arrow table of one episode (``mapping``: column -> (T, ...) array or list) with ``schema``, built with
+    pyarrow alone; None when a column is of a type not built here (images, nested lists, strings)."""
+    import pyarrow as pa
+
+    arrays = []
+    for field in schema:
+        if field.name not in mapping:
+            return None
+        values = mapping[field.name]
+        if pa.types.is_fixed_size_list(field.type):
+            child = field.type.value_type
+            if not (pa.types.is_floating(child) or pa.types.is_integer(child) or pa.types.is_boolean(child)):
+                return None
+            flat = np.asarray(values, dtype=child.to_pandas_dtype())
+            if flat.ndim != 2 or flat.shape[1] != field.type.list_size:
+                return None
+            arrays.append(pa.FixedSizeListArray.from_arrays(pa.array(flat.reshape(-1), type=child),
+                                                            field.type.list_size))
+        elif pa.types.is_floating(field.type) or pa.types.is_integer(field.type) or pa.types.is_boolean(field.type):
+            flat = np.asarray(values)
+            if flat.ndim != 1:
+                return None
+            arrays.append(pa.array(flat, type=field.type))
+        else:
+            return None
+    return pa.Table.from_arrays(arrays, schema=schema)
 
 
 def attach_episode_columns(ds, columns, batch: int = 1) -> None:
@@ -174,6 +344,30 @@ def attach_episode_columns(ds, columns, batch: int = 1) -> None:
 
     meta._surrol_pending_stats = []
     meta.save_episode = save_episode_with_columns if batch == 1 else save_episode_batched
+    _remember_task_indices(meta)
+
+
+def _remember_task_indices(meta) -> None:
+    """``meta.get_task_index`` remembered while ``meta.tasks`` is the same table: lerobot's ``save_episode`` looks up
+    every frame's task in the pandas table (~0.1 ms each). A task's index never changes once given
+    (``save_episode_tasks`` only adds rows), so only found indices are remembered, and a new table empties the memo."""
+    original = getattr(meta, "get_task_index", None)
+    if original is None or getattr(original, "_surrol_memo", False):
+        return
+    memo: dict = {"tasks": None, "index": {}}
+
+    def get_task_index(task):
+        if memo["tasks"] is not meta.tasks:
+            memo["tasks"], memo["index"] = meta.tasks, {}
+        found = memo["index"].get(task)
+        if found is None:
+            found = original(task)
+            if found is not None:
+                memo["index"][task] = found
+        return found
+
+    get_task_index._surrol_memo = True
+    meta.get_task_index = get_task_index
 
 
 def write_episode_totals(ds) -> None:

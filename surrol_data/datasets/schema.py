@@ -48,6 +48,7 @@ policy input.
 
 from __future__ import annotations
 
+import functools
 import json
 from datetime import datetime, timezone
 
@@ -418,6 +419,7 @@ def normalize_provenance(provenance: dict, trajectory=None, defaults: dict | Non
     return out
 
 
+@functools.cache   # the installed version does not change while a process runs; the metadata scan costs ~2 ms
 def package_version() -> str:
     from importlib.metadata import PackageNotFoundError, version
 
