@@ -7,6 +7,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from surrol_data.evaluation.study_report import discover_runs, recovery_rows, table1_estimates
@@ -39,7 +40,8 @@ def _listed(values) -> str:
 
 
 def test_the_run_count_and_the_success_table(section, runs):
-    assert f"**{len(runs)} of the 12 matched runs are committed" in section
+    count = "All 12 matched runs are" if len(runs) == 12 else f"{len(runs)} of the 12 matched runs are"
+    assert f"**{count} committed" in section
     est = table1_estimates(runs, [50, 100])
     for epoch in (50, 100):
         row = re.search(rf"^\| {epoch} \|(.*)\|$", section, re.M)
@@ -59,5 +61,11 @@ def test_steps_path_first_epoch_at_90_and_recovery(section, runs):
         firsts = [next(row["epoch"] for row in r.rows if row.get("success_rate", 0) >= 0.9)
                   for r in sorted(runs, key=lambda r: r.seed) if r.source == source]
         assert f"{_listed(firsts)} for the {source}-trained" in flat, source
+    first = {source: [next(row["epoch"] for row in r.rows if row.get("success_rate", 0) >= 0.9)
+                      for r in runs if r.source == source] for source in SOURCES}
+    if "Every human-trained run reaches ≥ 90 % success before any script-trained run" in flat:
+        assert max(first["novice"] + first["expert"]) < min(first["script"]), first
+    means = ", ".join(f"{np.mean(first[s]):.1f}" for s in SOURCES[1:]) + f" and {np.mean(first['script']):.1f}"
+    assert f"(means {means})" in flat
     for row in recovery_rows(runs, 50):
         assert f"{row['source']} {row['recovered']} of {row['first_failed']}" in flat, row
