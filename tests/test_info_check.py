@@ -13,19 +13,13 @@ from typer.testing import CliRunner
 from surrol_data.cli import app
 from surrol_data.datasets import guard, validated_cache
 from surrol_data.datasets.reader import DatasetError
-from surrol_data.datasets.recorder import DatasetRecorder
-from surrol_data.datasets.schema import frame_features
-from test_recorder import GOAL, OBS, RECORDER_ARGS, make_traj, provenance
+from test_recorder import record_small_dataset
 
 
 @pytest.fixture
 def root(tmp_path, monkeypatch):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
-    root = tmp_path / "ds"
-    with DatasetRecorder(root, features=frame_features(OBS, GOAL, 5, 1), **RECORDER_ARGS) as rec:
-        for i in range(4):
-            rec.record(make_traj(i, 6), provenance(i))
-    return root
+    return record_small_dataset(tmp_path / "ds", 4)
 
 
 def _no_frames_read(monkeypatch):

@@ -57,6 +57,14 @@ def provenance(i: int) -> dict:
             "device_settings": {"scaling": [0.4, 0.4, 0.4]}}
 
 
+def record_small_dataset(root: Path, episodes: int, steps: int = 6) -> Path:
+    """A state-only dataset of ``episodes`` synthetic episodes of ``steps`` frames, written by the real recorder."""
+    with DatasetRecorder(root, features=frame_features(OBS, GOAL, 5, 1), **RECORDER_ARGS) as rec:
+        for i in range(episodes):
+            rec.record(make_traj(i, steps), provenance(i))
+    return root
+
+
 def assert_same(a: Trajectory, b: Trajectory) -> None:
     for name in ("observation", "achieved_goal", "desired_goal", "action", "reward", "success", "terminated",
                  "tip_position", "jaw_angle"):

@@ -8,18 +8,13 @@ import pytest
 
 from surrol_data.datasets import guard
 from surrol_data.datasets.reader import DatasetError
-from surrol_data.datasets.recorder import DatasetRecorder
-from surrol_data.datasets.schema import frame_features
 from surrol_data.datasets.validated_cache import cache_dir, dataset_digest
-from test_recorder import GOAL, OBS, RECORDER_ARGS, make_traj, provenance
+from test_recorder import record_small_dataset
 
 
 def test_checked_bytes_are_not_checked_again_and_any_edit_is(tmp_path, monkeypatch):
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
-    root = tmp_path / "ds"
-    with DatasetRecorder(root, features=frame_features(OBS, GOAL, 5, 1), **RECORDER_ARGS) as rec:
-        for i in range(3):
-            rec.record(make_traj(i, 6), provenance(i))
+    root = record_small_dataset(tmp_path / "ds", 3)
     before = sorted(p.relative_to(root) for p in root.rglob("*"))
     assert guard.require_valid(root) == root
     assert (cache_dir() / dataset_digest(root)).is_file()
