@@ -601,14 +601,17 @@ def interventions(out: Path = typer.Option(..., help="Folder for the datasets, p
                                                  "`interventions:` block)."),
                   override: list[str] = typer.Option([], help="Hydra override, e.g. "
                                                      "experiment.interventions.seeds=[0,1,2] (repeatable)."),
-                  report_only: bool = typer.Option(False, "--report", help="Run nothing: rebuild the report.")):
+                  report_only: bool = typer.Option(False, "--report", help="Run nothing: rebuild the report."),
+                  workers: int = typer.Option(1, min=1, help="(task, seed) cells run at once, each in its own "
+                                              "process (one per core).")):
     """Demos or interventions: success against frames of human effort, as whole demos or as takeovers (HG-DAgger).
     Continues an interrupted run in OUT."""
     from surrol_data.datasets.reader import DatasetError
     from surrol_data.study.interventions import run_interventions
 
     try:
-        files = run_interventions(out, experiment, override, train=not report_only, say=console.print)
+        files = run_interventions(out, experiment, override, train=not report_only, say=console.print,
+                                  workers=workers)
     except (ValueError, FileNotFoundError, DatasetError) as e:
         _fail(str(e))
     if files:
@@ -627,7 +630,9 @@ def train_bc_cmd(dataset: Path = typer.Argument(..., help="Dataset folder with d
                  successful_only: bool = typer.Option(True, help="Only successful episodes."),
                  frames: str = typer.Option("all", help="Which frames: all; human (whole demos and the takeover "
                                             "segments of intervention sessions: HG-DAgger); intervention (the "
-                                            "takeover segments only).")):
+                                            "takeover segments only)."),
+                 gmm_modes: int = typer.Option(0, min=0, help="0: a deterministic actor fit by MSE; N: BC-GMM with N "
+                                               "modes (robomimic's choice for people's demos, e.g. 5).")):
     """Train a behaviour-cloning policy from a dataset's demos (selected by provenance)."""
     from surrol_data.algos.bc import BCConfig, demo_arrays, train_bc
     from surrol_data.datasets.reader import DatasetError, DatasetReader
@@ -656,8 +661,8 @@ def train_bc_cmd(dataset: Path = typer.Argument(..., help="Dataset folder with d
         _fail(f"--frames {frames}: the {len(episodes)} selected episodes of {dataset} hold no takeover frames; "
               "record some with `surrol-data collect --source intervene ... --append`")
     obs, goal, action, episode = demo_arrays(trajectories)
-    policy = train_bc(obs, goal, action, BCConfig(epochs=epochs, steps_per_epoch=steps_per_epoch, seed=seed),
-                      episode_index=episode)
+    policy = train_bc(obs, goal, action, BCConfig(epochs=epochs, steps_per_epoch=steps_per_epoch, seed=seed,
+                                                      gmm_modes=gmm_modes), episode_index=episode)
     console.print(f"trained on {len(episodes)} episodes ({len(obs)} samples); saved {policy.save(out)}")
 
 

@@ -134,6 +134,53 @@ def test_bc_errors_are_explicit(tmp_path):
         load_policy(tmp_path / "missing.pt")
 
 
+def hesitant_demos(n: int = 2000, seed: int = 0):
+    """A person at the grasp pose: from the same state the jaw command is "hold open" (+0.8) 70 % of the time
+    and "close" (−0.8) 30 %; the other channels follow the state linearly."""
+    obs, goal, action, episode = linear_demos(n, seed)
+    closing = np.random.default_rng(seed + 1).random(n) < 0.3
+    action[:, -1] = np.where(closing, -0.8, 0.8)
+    return obs, goal, action, episode
+
+
+def test_bc_gmm_keeps_a_hesitation_that_an_mse_actor_averages_away():
+    obs, goal, action, episode = hesitant_demos()
+    gmm_config = BCConfig(**{**SMALL.__dict__, "epochs": 20, "gmm_modes": 5})
+    gmm = train_bc(obs, goal, action, gmm_config, episode_index=episode, progress=False)
+    mse = train_bc(obs, goal, action, SMALL, episode_index=episode, progress=False)
+    new_obs, new_goal, new_action, _ = hesitant_demos(1000, seed=7)    # states neither policy saw
+    batch = {"observation": new_obs, "desired_goal": new_goal}
+    jaw_mse, jaw_gmm = mse.act(batch)[:, -1], gmm.act(batch)[:, -1]
+    # The MSE actor answers around the average (+0.32): a compromise no person gave, too weak to close the jaw
+    # when it happens to dip below zero. BC-GMM gives the person's commands, closing about as often as they did.
+    assert abs(jaw_mse.mean() - 0.32) < 0.1 and np.abs(np.abs(jaw_mse) - 0.8).mean() > 0.3
+    assert 0.2 < (jaw_gmm < 0).mean() < 0.4
+    assert np.abs(np.abs(jaw_gmm) - 0.8).mean() < 0.05
+    # The state-driven channels are still learned (the negative log-likelihood fell by the epochs).
+    assert gmm.log[-1]["train_loss"] < gmm.log[0]["train_loss"]
+    assert np.abs(gmm.act(batch)[:, :-1] - new_action[:, :-1]).mean() < 0.1
+
+
+def test_bc_gmm_round_trips_and_acts_the_same_for_its_seed(tmp_path):
+    obs, goal, action, episode = hesitant_demos(500)
+    policy = train_bc(obs, goal, action, BCConfig(**{**SMALL.__dict__, "gmm_modes": 3}), episode_index=episode,
+                      progress=False)
+    path = policy.save(tmp_path / "gmm.pt")
+    batch = {"observation": obs[:64], "desired_goal": goal[:64]}
+    first, again = BCPolicy.load(path), BCPolicy.load(path)
+    assert first.config.gmm_modes == 3
+    drawn = [first.act(batch) for _ in range(3)]
+    np.testing.assert_array_equal(np.stack(drawn), np.stack([again.act(batch) for _ in range(3)]))
+    assert not np.array_equal(drawn[0], drawn[1])   # a fresh mode per call, not one fixed choice
+    torch.manual_seed(0)
+    before = torch.rand(1)
+    torch.manual_seed(0)
+    first.act(batch)
+    assert torch.rand(1) == before                  # acting leaves the global torch seed alone
+    with pytest.raises(ValueError, match="gmm_modes >= 0"):
+        train_bc(obs, goal, action, BCConfig(**{**SMALL.__dict__, "gmm_modes": -1}), progress=False)
+
+
 # --- rollouts and evaluation in the real envs --------------------------------------------------
 
 @pytest.fixture(scope="module")

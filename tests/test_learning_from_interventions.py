@@ -117,6 +117,20 @@ def test_the_experiment_runs_end_to_end_and_reports_success_against_human_frames
     assert "data:image/png;base64" in html and TASK in html
 
 
+def test_cells_in_parallel_processes_give_the_same_rows(experiment, tmp_path):
+    out, args, _ = experiment
+    parallel = tmp_path / "parallel"
+    result, text = _invoke([*[parallel if a == out else a for a in args], "--workers", 2])
+    assert result.exit_code == 0, result.output
+    assert f"{TASK} seed 0: done" in text and f"{TASK} seed 1: done" in text
+
+    def rows(folder):   # what was measured; the CPU seconds it took differ run to run
+        return sorted((json.dumps({k: v for k, v in json.loads(line).items() if not k.endswith("cpu_s")},
+                                  sort_keys=True) for line in (folder / "results.jsonl").read_text().splitlines()))
+
+    assert rows(parallel) == rows(out)
+
+
 def test_a_rerun_continues_and_redoes_nothing_and_another_config_is_refused(experiment):
     out, args, _ = experiment
     before = (out / "results.jsonl").read_text()

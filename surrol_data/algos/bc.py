@@ -6,9 +6,12 @@ Reads top to bottom:
    near-duplicate neighbouring steps of one episode do not leak into the hold-out set);
 2. fit the observation and goal normalisers on the training split;
 3. train a :class:`~surrol_data.algos.networks.DeterministicActor` on normalised ``[o, g]`` with MSE to
-   the demo action and Adam, minibatches drawn uniformly with replacement (as DEX's buffers do);
+   the demo action and Adam, minibatches drawn uniformly with replacement (as DEX's buffers do) — or, with
+   ``gmm_modes`` > 0, a :class:`~surrol_data.algos.networks.GMMActor` by the demo action's negative
+   log-likelihood (robomimic's BC-GMM, the choice for people's demos, whose pauses a mean cannot represent);
 4. after every epoch (a fixed number of gradient steps, robomimic's convention, so the cost does not
-   depend on the dataset size) record the train loss and the hold-out loss in ``policy.log``.
+   depend on the dataset size) record the train loss and the hold-out loss in ``policy.log`` (MSE, or the
+   negative log-likelihood per sample for BC-GMM).
 
 Defaults are SurRoL-v2's BC (lr 1e-3, batch 128, 3×256 MLP; reference §2 "BC"), which is also
 robomimic's choice for machine-generated low-dimensional data (§6.1).
@@ -25,7 +28,7 @@ import torch
 import torch.nn.functional as F
 from tqdm.auto import tqdm
 
-from surrol_data.algos.networks import DEFAULT_HIDDEN_SIZES, DeterministicActor
+from surrol_data.algos.networks import DEFAULT_HIDDEN_SIZES, DeterministicActor, GMMActor
 from surrol_data.algos.normalizer import Normalizer
 
 CHECKPOINT_FORMAT = "surrol_data.bc/1"
@@ -45,6 +48,10 @@ class BCConfig:
     # One thread: results that do not depend on the core count (reductions split across threads round
     # differently), ~3 s for 2000 steps on a 2-core CPU, and no slowdown when other jobs share the cores.
     num_threads: int = 1
+    # 0: a deterministic actor fit by MSE. N > 0: robomimic's BC-GMM with N modes (robomimic uses 5), acting by
+    # drawing a mode from a generator seeded with ``seed`` (the same rollouts for the same seed and episode order).
+    gmm_modes: int = 0
+    gmm_min_std: float = 0.01
 
 
 def demo_arrays(trajectories: Sequence) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -65,13 +72,16 @@ def demo_arrays(trajectories: Sequence) -> tuple[np.ndarray, np.ndarray, np.ndar
 class BCPolicy:
     """A trained BC actor with its normalisers: numpy obs dict in, numpy action out."""
 
-    def __init__(self, actor: DeterministicActor, obs_norm: Normalizer, goal_norm: Normalizer,
+    def __init__(self, actor: DeterministicActor | GMMActor, obs_norm: Normalizer, goal_norm: Normalizer,
                  config: BCConfig, log: list[dict] | None = None):
         self.actor = actor.eval()
         self.obs_norm = obs_norm
         self.goal_norm = goal_norm
         self.config = config
         self.log = log if log is not None else []
+        # BC-GMM draws a mode per action: from its own generator, so rollouts repeat for a seed and never
+        # depend on (or disturb) the caller's global torch seed.
+        self.generator = torch.Generator().manual_seed(config.seed) if isinstance(actor, GMMActor) else None
 
     def act(self, obs: dict) -> np.ndarray:
         """Action for one obs dict (arrays of shape (dim,)) or a batch (arrays of shape (B, dim))."""
@@ -81,8 +91,9 @@ class BCPolicy:
             raise ValueError(
                 f"policy was trained on observation dim {self.actor.obs_dim} and goal dim {self.actor.goal_dim}, "
                 f"got shapes {o.shape} and {g.shape}; is it evaluated on the task it was trained on?")
+        o_t, g_t = torch.from_numpy(self.obs_norm.normalize(o)), torch.from_numpy(self.goal_norm.normalize(g))
         with torch.inference_mode():
-            a = self.actor(torch.from_numpy(self.obs_norm.normalize(o)), torch.from_numpy(self.goal_norm.normalize(g)))
+            a = self.actor(o_t, g_t) if self.generator is None else self.actor(o_t, g_t, generator=self.generator)
         return a.numpy().astype(np.float32)
 
     __call__ = act
@@ -123,7 +134,7 @@ class BCPolicy:
             raise ValueError(f"{path} is not a BC checkpoint (format {found!r}, expected {CHECKPOINT_FORMAT!r})")
         config = BCConfig(**{**ckpt["config"], "hidden_sizes": tuple(ckpt["config"]["hidden_sizes"])})
         dims = ckpt["dims"]
-        actor = DeterministicActor(dims["obs"], dims["goal"], dims["act"], config.hidden_sizes)
+        actor = _actor(dims["obs"], dims["goal"], dims["act"], config)
         actor.load_state_dict(ckpt["actor"])
         return cls(actor, Normalizer.from_state_dict(ckpt["obs_norm"]), Normalizer.from_state_dict(ckpt["goal_norm"]),
                    config, ckpt["log"])
@@ -143,8 +154,9 @@ def train_bc(obs: np.ndarray, goal: np.ndarray, action: np.ndarray, config: BCCo
                          f"goal {goal.shape}, action {action.shape}")
     if n == 0:
         raise ValueError("train_bc got no samples")
-    if min(config.epochs, config.steps_per_epoch, config.batch_size, config.num_threads) < 1:
-        raise ValueError(f"epochs, steps_per_epoch, batch_size and num_threads must be >= 1, got {config}")
+    if min(config.epochs, config.steps_per_epoch, config.batch_size, config.num_threads) < 1 or config.gmm_modes < 0:
+        raise ValueError(f"epochs, steps_per_epoch, batch_size and num_threads must be >= 1 and gmm_modes >= 0, "
+                         f"got {config}")
     if np.abs(action).max() > 1.0 + 1e-6:
         raise ValueError(f"demo actions must lie in [-1, 1] (the actor is tanh-bounded), max |a| = {np.abs(action).max():.3f}")
 
@@ -167,7 +179,7 @@ def train_bc(obs: np.ndarray, goal: np.ndarray, action: np.ndarray, config: BCCo
     # nor disturbs the caller's global torch seed.
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(config.seed)
-        actor = DeterministicActor(obs.shape[1], goal.shape[1], action.shape[1], config.hidden_sizes)
+        actor = _actor(obs.shape[1], goal.shape[1], action.shape[1], config)
     optimizer = torch.optim.Adam(actor.parameters(), lr=config.lr)
     batch_gen = torch.Generator().manual_seed(config.seed)
 
@@ -183,7 +195,7 @@ def train_bc(obs: np.ndarray, goal: np.ndarray, action: np.ndarray, config: BCCo
             epoch_loss = 0.0
             for _ in range(config.steps_per_epoch):
                 rows = train_t[torch.randint(len(train_t), (config.batch_size,), generator=batch_gen)]
-                loss = F.mse_loss(actor(o_all[rows], g_all[rows]), a_all[rows])
+                loss = _loss(actor, o_all[rows], g_all[rows], a_all[rows])
                 optimizer.zero_grad(set_to_none=True)
                 loss.backward()
                 optimizer.step()
@@ -196,7 +208,7 @@ def train_bc(obs: np.ndarray, goal: np.ndarray, action: np.ndarray, config: BCCo
             if len(val_t):
                 actor.eval()
                 with torch.inference_mode():
-                    val_loss = F.mse_loss(actor(o_all[val_t], g_all[val_t]), a_all[val_t]).item()
+                    val_loss = _loss(actor, o_all[val_t], g_all[val_t], a_all[val_t]).item()
             log.append({"epoch": epoch, "step": step,
                         "train_loss": epoch_loss / config.steps_per_epoch, "val_loss": val_loss})
             bar.set_postfix(loss=f"{log[-1]['train_loss']:.2e}", val=f"{val_loss:.2e}")
@@ -205,6 +217,19 @@ def train_bc(obs: np.ndarray, goal: np.ndarray, action: np.ndarray, config: BCCo
         torch.set_num_threads(previous_threads)
 
     return BCPolicy(actor, obs_norm, goal_norm, config, log)
+
+
+def _actor(obs_dim: int, goal_dim: int, act_dim: int, config: BCConfig) -> DeterministicActor | GMMActor:
+    if config.gmm_modes:
+        return GMMActor(obs_dim, goal_dim, act_dim, config.gmm_modes, config.hidden_sizes, config.gmm_min_std)
+    return DeterministicActor(obs_dim, goal_dim, act_dim, config.hidden_sizes)
+
+
+def _loss(actor: DeterministicActor | GMMActor, obs: torch.Tensor, goal: torch.Tensor,
+          action: torch.Tensor) -> torch.Tensor:
+    if isinstance(actor, GMMActor):
+        return -actor.log_prob(obs, goal, action).mean()
+    return F.mse_loss(actor(obs, goal), action)
 
 
 def _split(n: int, episode_index: np.ndarray | None, val_fraction: float,

@@ -89,6 +89,48 @@ class SquashedGaussianActor(nn.Module):
         return action, log_prob
 
 
+class GMMActor(nn.Module):
+    """robomimic's BC-GMM policy head: π(a | o, g) a mixture of ``modes`` diagonal Gaussians, means tanh-bounded.
+
+    People hesitate: at the grasp pose an operator holds the jaw open for a while, then closes it from nearly the
+    same state. A deterministic actor fit by MSE predicts the average of "hold" and "close" there and never closes;
+    a mixture keeps both as modes with their weights, so a rollout that picks a mode by its weight closes after
+    about as long as the person did. Acting uses robomimic's low-noise evaluation: draw a mode by its weight and
+    act its mean (the per-mode spread is the operators' tremor, not something to replay).
+    """
+
+    def __init__(self, obs_dim: int, goal_dim: int, act_dim: int, modes: int = 5,
+                 hidden_sizes: Sequence[int] = DEFAULT_HIDDEN_SIZES, min_std: float = 0.01):
+        super().__init__()
+        if modes < 1:
+            raise ValueError(f"GMMActor needs at least one mode, got {modes}")
+        self.obs_dim, self.goal_dim, self.act_dim = int(obs_dim), int(goal_dim), int(act_dim)
+        self.modes, self.min_std = int(modes), float(min_std)
+        self.net = mlp(self.obs_dim + self.goal_dim, self.modes * (2 * self.act_dim + 1), hidden_sizes)
+
+    def _heads(self, obs: torch.Tensor, goal: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        out = self.net(torch.cat([obs, goal], dim=-1))
+        split = self.modes * self.act_dim
+        shape = (*out.shape[:-1], self.modes, self.act_dim)
+        means = torch.tanh(out[..., :split]).reshape(shape)
+        std = F.softplus(out[..., split:2 * split]).reshape(shape) + self.min_std
+        return means, std, out[..., 2 * split:]
+
+    def log_prob(self, obs: torch.Tensor, goal: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """log π(action | o, g), one value per row."""
+        means, std, logits = self._heads(obs, goal)
+        per_mode = torch.distributions.Normal(means, std).log_prob(action.unsqueeze(-2)).sum(-1)
+        return torch.logsumexp(per_mode + torch.log_softmax(logits, dim=-1), dim=-1)
+
+    def forward(self, obs: torch.Tensor, goal: torch.Tensor, generator: torch.Generator | None = None) -> torch.Tensor:
+        """The mean of a mode drawn by its weight (low-noise evaluation); rows are drawn independently."""
+        means, _, logits = self._heads(obs, goal)
+        flat_logits = logits.reshape(-1, self.modes)
+        mode = torch.multinomial(torch.softmax(flat_logits, dim=-1), 1, generator=generator).squeeze(-1)
+        chosen = means.reshape(-1, self.modes, self.act_dim)[torch.arange(len(mode)), mode]
+        return chosen.reshape(*means.shape[:-2], self.act_dim)
+
+
 def soft_update(target: nn.Module, source: nn.Module, tau: float) -> None:
     """Polyak averaging θ' ← τθ + (1 − τ)θ' in place."""
     with torch.no_grad():
