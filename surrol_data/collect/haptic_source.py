@@ -56,7 +56,7 @@ from surrol_data.datasets.recorder import DatasetRecorder
 from surrol_data.datasets.schema import CAMERA_VERSION, intervention_features
 from surrol_data.datasets.trajectory import TrajectoryBuilder
 from surrol_data.envs import env_id as make_env_id
-from surrol_data.envs.names import dimension_names
+from surrol_data.envs.names import dimension_names, is_ecm_action
 from surrol_data.envs.units import ACTION_POSITION_M, ACTION_YAW_RAD, CONTROL_PERIOD_S
 
 # SurRoL-v2 recorded human NeedlePick demos with a 150-step horizon, 3× the scripted 50: people need the margin.
@@ -215,7 +215,7 @@ def control_period_s(env) -> float:
     the arms every 0.2 s. A session paced for a person waits this long between steps."""
     from surrol_data.envs.physics import ECM_CONTROL_PERIOD_S
 
-    return ECM_CONTROL_PERIOD_S if env.action_space.shape[0] % 5 else CONTROL_PERIOD_S
+    return ECM_CONTROL_PERIOD_S if is_ecm_action(env.action_space.shape[0]) else CONTROL_PERIOD_S
 
 
 def _human_horizon(eid: str, registered: int) -> int:
@@ -229,7 +229,7 @@ def _human_horizon(eid: str, registered: int) -> int:
     registered = HUMAN_PACE_STEPS.get(eid.split("/")[-1].rsplit("-v", 1)[0], registered)
     module, name = gym.spec(eid).entry_point.split(":")
     action_dim = getattr(import_module(module), name).ACTION_DIM
-    if action_dim % 5:      # an ECM task: one camera, 0.1 s steps
+    if is_ecm_action(action_dim):      # one camera, 0.1 s steps
         return round(HUMAN_HORIZON_FACTOR * registered * CONTROL_PERIOD_S / ECM_CONTROL_PERIOD_S)
     return HUMAN_HORIZON_FACTOR * registered * (action_dim // 5)
 
@@ -256,7 +256,7 @@ class _Session:
         self.keep_failures, self.max_attempts, self.progress = keep_failures, max_attempts, progress
         self.gui, self.command, self.on_step = gui, command, on_step
         act_dim = env.action_space.shape[0]
-        self.ecm_only = act_dim % 5 != 0   # ECM tasks: a 1-, 3- or 4-D camera action, one device
+        self.ecm_only = is_ecm_action(act_dim)   # one camera, one device
         self.control_period_s = control_period_s(env)
         n_devices = 1 if self.ecm_only else act_dim // 5
 

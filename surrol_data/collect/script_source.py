@@ -16,7 +16,7 @@ from surrol_data.datasets.recorder import DatasetRecorder
 from surrol_data.datasets.schema import event_features, frame_features
 from surrol_data.datasets.trajectory import ENV_CAMERA
 from surrol_data.envs import env_id as make_env_id
-from surrol_data.envs.names import dimension_names
+from surrol_data.envs.names import dimension_names, is_ecm_action
 
 
 @dataclass
@@ -95,7 +95,7 @@ class PacedOracle:
 
     def __call__(self, obs: dict):
         action = np.array(self.oracle(obs), np.float32)
-        if action.size % 5:                  # ECM tasks: every dimension is camera motion
+        if is_ecm_action(action.size):       # every dimension is camera motion
             return action * self.speed
         arms = action.reshape(-1, 5)         # per PSM arm: dx, dy, dz, d_rot, jaw
         arms[:, :4] *= self.speed

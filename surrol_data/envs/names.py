@@ -19,6 +19,12 @@ _PSM_ROBOT = (*(f"tip_{c}" for c in _XYZ), *(f"tip_{a}" for a in _RPY), "jaw")
 _PSM_ACTION = ("dx", "dy", "dz", "dyaw", "jaw")
 
 
+def is_ecm_action(action_dim: int) -> bool:
+    """Whether an action of this size moves the endoscope (a 1-, 3- or 4-D camera action) rather than PSMs
+    (5 dimensions per arm): what collectors and the GUI ask before they have the env's class at hand."""
+    return action_dim % len(_PSM_ACTION) != 0
+
+
 def _xyz(prefix: str) -> tuple[str, ...]:
     return tuple(f"{prefix}_{c}" for c in _XYZ)
 

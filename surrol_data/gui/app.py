@@ -32,6 +32,7 @@ import surrol_data.envs  # noqa: F401  (registers the tasks)
 from surrol_data.collect.devices.keyboard import DISCARD_KEY, QUIT_KEY, REDO_KEY, SAVE_KEY, TAKEOVER_KEY
 from surrol_data.collect.haptic_source import SKILLS, control_period_s, has_display
 from surrol_data.envs import TASKS, env_id
+from surrol_data.envs.names import is_ecm_action
 from surrol_data.gui.hud import Hud
 from surrol_data.render import display
 
@@ -294,7 +295,7 @@ class TrainingApp:
         self._preview_env.reset(seed=self.seed)
         self._show_env(self._preview_env)
         act_dim = self._preview_env.action_space.shape[0]
-        ecm = act_dim % 5 != 0   # an ECM task: one camera
+        ecm = is_ecm_action(act_dim)   # one camera
         self.hud.task, self.hud.arms = task, 1 if ecm else act_dim // 5
         self.hud.period_s = control_period_s(self._preview_env)   # what the session paces its steps by
         self.hud.intervention = self.policy is not None
