@@ -69,3 +69,9 @@ def test_steps_path_first_epoch_at_90_and_recovery(section, runs):
     assert f"(means {means})" in flat
     for row in recovery_rows(runs, 50):
         assert f"{row['source']} {row['recovered']} of {row['first_failed']}" in flat, row
+
+
+def test_the_natural_study_run_count(section):
+    committed = len(discover_runs([ROOT / "docs" / "results" / "table1_natural" / "runs"]))
+    count = "all 12 runs" if committed == 12 else f"{committed} of its 12 runs"
+    assert f"{count} committed" in " ".join(section.split())
