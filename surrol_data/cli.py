@@ -388,13 +388,14 @@ def gui(out: Path = typer.Option(Path("gui_sessions"), help="Folder for the sess
 @app.command()
 def info(dataset: Path = typer.Argument(..., help="Dataset folder.")):
     """Summarise a dataset: counts, features and a provenance breakdown."""
-    from surrol_data.datasets.guard import require_valid
     from surrol_data.datasets.info import render_info
+    from surrol_data.datasets.info_cache import checked_info
     from surrol_data.datasets.reader import DatasetError
 
     try:
         with _working(f"checking and summarising {dataset} ..."), _disk_full_is_an_error(dataset):
-            summary = render_info(require_valid(dataset, _note, frames=False), label=dataset)
+            target, facts = checked_info(dataset, _note)   # the same bytes answered before: remembered
+            summary = render_info(target, label=dataset, facts=facts)
         console.print(summary)
     except DatasetError as e:
         _fail(str(e))

@@ -9,7 +9,8 @@
 2. :func:`require_valid`: the cheap checks of :func:`surrol_data.datasets.validate.validate_dataset` (no env,
    no lerobot import, videos only demuxed); a damaged dataset is refused with the validator's own messages. A
    dataset whose bytes already passed them is not checked again (:mod:`validated_cache`: by content digest).
-   ``info``, which shows metadata only, asks for the metadata checks only (``frames=False``): no frame is read.
+   ``info``, which shows metadata only, asks for the metadata checks only (``frames=False``): no frame is read;
+   it remembers its whole answer by content digest (:mod:`info_cache`), so the same bytes are not checked twice.
 
 Both return the folder to read: the dataset itself, or the repaired view of a read-only one.
 """
@@ -108,11 +109,16 @@ def require_valid(root: str | Path, notify: Callable[[str], None] = _stderr, *, 
     (:func:`~surrol_data.datasets.validate.validate_dataset` with ``frames=False``: provenance and its seals,
     counts, footers ...), run every time — they read no frame and hash nothing, so they stay fast at any size.
     With frames, a dataset whose bytes already passed is not checked again (by content digest)."""
+    require_dataset_folder(root)
+    return check_finished(root, ensure_finished(root, notify), frames=frames)
+
+
+def check_finished(root: str | Path, target: Path, *, frames: bool = True) -> Path:
+    """The checks of :func:`require_valid` on ``target``, what :func:`ensure_finished` returned for ``root`` (the
+    folder the user named, which the messages name); ``target``."""
     from surrol_data.datasets.validate import validate_dataset
     from surrol_data.datasets.validated_cache import dataset_digest, known_valid, remember_valid
 
-    require_dataset_folder(root)
-    target = ensure_finished(root, notify)
     if frames:
         digest = dataset_digest(target)
         if known_valid(digest):   # these very bytes passed these very checks before

@@ -131,10 +131,13 @@ def skill_breakdown(root: str | Path, reader: DatasetReader | None = None) -> li
     eps = reader.episodes
     if not {*SKILL_GROUP_BY, "success", "steps_to_success", "path_length_cm", "jaw_closures"} <= set(eps.columns):
         return []
+    # every successful episode's LDLJ in one pass over the data files (one pass per group read every file again)
+    successful = [int(e) for e in eps.loc[eps["success"].astype(bool), "episode_index"]]
+    ldlj_of = dict(zip(successful, _smoothness(reader, successful), strict=True))
     groups = []
     for key, rows in eps.groupby(list(SKILL_GROUP_BY), sort=True):
         ok = rows[rows["success"]]
-        ldlj = _smoothness(reader, [int(e) for e in ok["episode_index"]])
+        ldlj = [ldlj_of[int(e)] for e in ok["episode_index"]]
 
         def std(values):
             values = [float(v) for v in values if np.isfinite(v)]
@@ -159,14 +162,24 @@ def _fmt(value: float, digits: int = 1) -> str:
     return "–" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
 
 
-def render_info(root: str | Path, label: str | Path | None = None):
-    """A rich renderable (tables) of :func:`summarize`; print it with ``rich.console.Console().print``."""
+def info_facts(root: str | Path) -> dict:
+    """Everything :func:`render_info` shows: ``{"summary": summarize(root), "by_skill": skill_breakdown(root)}``,
+    as plain JSON values (what :mod:`surrol_data.datasets.info_cache` remembers)."""
+    reader = DatasetReader(root)   # the episodes table read once for every part below
+    summary = summarize(root, reader)
+    by_skill = skill_breakdown(root, reader) if summary["has_provenance"] else []
+    return {"summary": summary, "by_skill": by_skill}
+
+
+def render_info(root: str | Path, label: str | Path | None = None, facts: dict | None = None):
+    """A rich renderable (tables) of :func:`summarize`; print it with ``rich.console.Console().print``.
+    ``facts``: :func:`info_facts` of ``root`` when the caller has them already (remembered by content digest)."""
     from rich import box
     from rich.console import Group
     from rich.table import Table
 
-    reader = DatasetReader(root)   # the episodes table read once for every part below
-    s = summarize(root, reader)
+    facts = facts if facts is not None else info_facts(root)
+    s = dict(facts["summary"], root=str(Path(root)))
     if label is not None:  # the dataset the user named, when ``root`` is the repaired view of a read-only one
         s["root"] = str(label)
     totals = Table(title=f"Dataset {s['root']}", show_header=False)
@@ -215,7 +228,7 @@ def render_info(root: str | Path, label: str | Path | None = None):
         parts.append(groups)
         if s["interventions"]:
             parts.append(_interventions_table(s["interventions"]))
-        by_skill = skill_breakdown(root, reader)
+        by_skill = facts["by_skill"]
         if by_skill:
             prof = Table(title="Proficiency by source and skill", box=box.SIMPLE_HEAD, pad_edge=False,
                          collapse_padding=True,
