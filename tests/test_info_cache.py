@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 
 from surrol_data.cli import app
 from surrol_data.datasets import info as info_module
-from surrol_data.datasets import validate
+from surrol_data.datasets import info_cache, validate
 from surrol_data.datasets.info_cache import info_cache_dir
 from surrol_data.datasets.recorder import DatasetRecorder
 from surrol_data.datasets.validated_cache import dataset_digest
@@ -51,6 +51,8 @@ def test_the_same_bytes_are_answered_from_memory_and_nothing_is_written(root, mo
     assert (info_cache_dir() / f"{dataset_digest(root)}.json").is_file()
     monkeypatch.setattr(validate, "validate_dataset", _must_not_run)
     monkeypatch.setattr(info_module, "info_facts", _must_not_run)
+    monkeypatch.setattr(info_cache, "info_facts", _must_not_run)
+    monkeypatch.setattr(info_module, "DatasetReader", _must_not_run)
     code, again = _info(root)
     assert code == 0 and again == first   # the very same answer, with no check or summary computed
     assert "Proficiency by source and skill" in again and re.search(r"episodes\s*│\s*6\b", again), again
