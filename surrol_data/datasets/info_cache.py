@@ -1,6 +1,6 @@
 """``surrol-data info``'s answer remembered by the dataset's content digest, so that asking again is seconds.
 
-At 10,000 episodes the answer costs ~30 s of CPU however it is computed: 1,000 ``meta/episodes`` footers of ~230
+At 10,000 episodes the answer costs ~20 s of CPU however it is computed: 1,000 ``meta/episodes`` footers of ~230
 columns each to parse (~5 ms each), the metadata checks over every row, and the data files' tip columns for the
 smoothness (LDLJ) column. Hashing the whole dataset costs ~0.5 s. So :func:`checked_info` hashes it
 (:func:`~surrol_data.datasets.validated_cache.dataset_digest`: every file's path and bytes, and the checking and
