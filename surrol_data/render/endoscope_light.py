@@ -27,7 +27,19 @@ from __future__ import annotations
 
 import math
 
-from panda3d.core import AmbientLight, DepthWriteAttrib, NodePath, PerspectiveLens, Point3, RenderState, Spotlight, Vec3
+from panda3d.core import (
+    AmbientLight,
+    DepthWriteAttrib,
+    NodePath,
+    PerspectiveLens,
+    Point3,
+    RenderState,
+    ShaderAttrib,
+    Spotlight,
+    Vec3,
+)
+
+from surrol_data.render.phong_shader import depth_only_shader
 
 CONE_DEG = 100.0
 SPOT_EXPONENT = 2.0
@@ -70,6 +82,9 @@ class EndoscopeLight:
         self.spot = _spot("endoscope_light", CONE_DEG, SPOT_EXPONENT)
         self.shadow = _spot("shadow_light", SHADOW_CONE_DEG, 1.0)
         self.shadow.set_tag_state_key(SHADOW_TAG)
+        # The shadow map is depth only: a trivial shader (overriding the scene's Phong program) writes it.
+        depth_only = ShaderAttrib.make(depth_only_shader(), 1000)
+        self.shadow.set_initial_state(self.shadow.get_initial_state().add_attrib(depth_only, 1000))
         self.shadow.set_tag_state(NO_SHADOW, RenderState.make(DepthWriteAttrib.make(DepthWriteAttrib.M_off), 1000))
         if shadows:
             self.shadow.set_shadow_caster(True, shadow_map_size, shadow_map_size)
