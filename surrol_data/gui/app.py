@@ -44,6 +44,7 @@ WINDOW_SIZE = (1280, 720)
 PANEL_FRACTION = 0.34      # of the window's width, for the task panel
 CONTROLS_FRACTION = 0.16   # of the window's height, for the controls under the view
 THUMBNAIL = (192, 144)
+VIEW_MULTISAMPLES = 4       # the endoscope view's anti-aliasing (the rest of the window is axis-aligned 2D)
 # The HUD's backing: 72 % black keeps its text above 4.5:1 (WCAG AA) contrast even over a white background.
 HUD_PLATE = (0.02, 0.02, 0.03, 0.72)
 HUD_PLATE_MARGIN = (0.4, 0.4, 0.25, 0.3)   # left, right, bottom, top, in the text's line heights
@@ -129,13 +130,42 @@ class TrainingApp:
 
     # ------------------------------------------------------------------ layout
     def _setup_view(self) -> None:
+        """The endoscope view is drawn into a texture of its own and shown on a card where the view sits.
+
+        Why: the scene changes only when the session hands over a step (5 per second for the arms), while the
+        window draws up to 30 frames/s for the HUD, the clicks and the keys. On a software rasteriser (Mesa's
+        llvmpipe) the shaded view is ~85 % of a frame's CPU, so it is drawn only when the scene has changed and
+        the window's other frames show the same image again: what the surgeon sees is the same, pixel for pixel."""
+        from panda3d.core import CardMaker, FrameBufferProperties, SamplerState, Texture
+
         from surrol_data.render.stage import endoscope_lens
 
-        region = self.base.camNode.get_display_region(0)
-        region.set_dimensions(PANEL_FRACTION, 1.0, CONTROLS_FRACTION, 1.0)
-        w = int(self.size[0] * (1 - PANEL_FRACTION))
-        h = int(self.size[1] * (1 - CONTROLS_FRACTION))
-        self.base.camNode.set_lens(endoscope_lens(w, h))
+        # The view's pixels, rounded as Panda3D rounds a display region's edges, so the card maps texels 1:1.
+        left, bottom = round(PANEL_FRACTION * self.size[0]), round(CONTROLS_FRACTION * self.size[1])
+        w, h = self.size[0] - left, self.size[1] - bottom
+        self.base.camNode.set_active(False)   # the default camera would draw the scene into the whole window
+        self._view_tex = Texture("endoscope_view")
+        self._view_tex.set_minfilter(SamplerState.FT_nearest)
+        self._view_tex.set_magfilter(SamplerState.FT_nearest)
+        fbp = FrameBufferProperties()
+        fbp.set_rgb_color(True)
+        fbp.set_rgba_bits(8, 8, 8, 8)
+        fbp.set_depth_bits(24)
+        fbp.set_multisamples(VIEW_MULTISAMPLES)
+        self._view_buffer = self.base.win.make_texture_buffer("endoscope_view", w, h, self._view_tex, False, fbp)
+        self._view_buffer.set_clear_color(self.base.get_background_color())
+        self._view_cam = self.base.make_camera(self._view_buffer, lens=endoscope_lens(w, h))
+        card = CardMaker("endoscope_view_card")
+        card.set_frame(-1 + 2 * left / self.size[0], 1, -1 + 2 * bottom / self.size[1], 1)
+        self._view_card = self.base.render2d.attach_new_node(card.generate())
+        self._view_card.set_texture(self._view_tex)
+        self._view_card.set_bin("background", 0)   # under the HUD and every control
+        self._view_frames = 0   # frames still to draw the view in (0: it shows the last drawn image)
+
+    def _redraw_view(self, frames: int = 1) -> None:
+        """Draw the view in the next ``frames`` frames (a new stage: its light's shadow buffer is made in its
+        first frame and drawn from the next, so it takes two)."""
+        self._view_frames = max(self._view_frames, frames)
 
     def _build_panel(self) -> None:
         from direct.gui.DirectGui import DGG, DirectButton, DirectFrame, DirectLabel, DirectScrolledFrame
@@ -353,13 +383,15 @@ class TrainingApp:
             self._stage = EndoscopeStage(self._endoscope.client, self._endoscope.scene_scale)
             self._stage.root.reparent_to(self.base.render)
             self._stage_client = env.unwrapped.client
+            self._redraw_view(2)
         self._sync_scene()
 
     def _sync_scene(self) -> None:
         """Copy the PyBullet poses into the scene: only while no session steps (or while it waits for this)."""
         if self._stage is not None:
             self._stage.update(self._endoscope.pose())
-            self._stage.place_camera(self.base.cam)
+            self._stage.place_camera(self._view_cam)
+            self._redraw_view()
 
     def _draw(self) -> None:
         """One frame: the step the session thread handed over (if any) into the scene, the HUD, then Panda3D's
@@ -380,7 +412,12 @@ class TrainingApp:
             self.hud.skill = "expert" if self.device == "operator" and self.skill == "unknown" else self.skill
         self.hud_text.setText("\n".join(self.hud.lines()) if self.task else "")
         self.keys_text.setText("\n".join(self.hud.key_lines()) if self.task else "")
+        drawing = self._view_frames > 0
+        self._view_buffer.set_active(drawing)
+        if self._stage is not None:
+            self._stage.light.set_drawing(drawing)
         self.base.taskMgr.step()
+        self._view_frames = max(0, self._view_frames - 1)
         self.frame_times.append(time.monotonic())
         if pending is not None:
             self.steps_drawn += 1

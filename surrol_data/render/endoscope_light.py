@@ -86,6 +86,7 @@ class EndoscopeLight:
         depth_only = ShaderAttrib.make(depth_only_shader(), 1000)
         self.shadow.set_initial_state(self.shadow.get_initial_state().add_attrib(depth_only, 1000))
         self.shadow.set_tag_state(NO_SHADOW, RenderState.make(DepthWriteAttrib.make(DepthWriteAttrib.M_off), 1000))
+        self._shadows = shadows
         if shadows:
             self.shadow.set_shadow_caster(True, shadow_map_size, shadow_map_size)
         self._distance = WORKING_DISTANCE_M
@@ -123,6 +124,11 @@ class EndoscopeLight:
         # at its own distance; the exposure holds its share of the on-axis light whatever that distance is.
         side_d = math.dist(side, target)
         self._expose(self.shadow, side_d, SHADOW_LIGHT_SHARE)
+
+    def set_drawing(self, drawing: bool) -> None:
+        """Draw the shadow map in the coming frames or not (a view that is not redrawn needs no new map)."""
+        if self._shadows:
+            self.shadow.set_active(drawing)
 
     def close(self) -> None:
         self.shadow.set_shadow_caster(False)
