@@ -57,6 +57,18 @@ class _WindowClosed(RuntimeError):
     """Raised in the session thread when the window closes while a step waits to be drawn."""
 
 
+def _view_fbp():
+    """The frame buffer of a view of the scene: 8-bit RGBA, depth, ``VIEW_MULTISAMPLES``× anti-aliasing."""
+    from panda3d.core import FrameBufferProperties
+
+    fbp = FrameBufferProperties()
+    fbp.set_rgb_color(True)
+    fbp.set_rgba_bits(8, 8, 8, 8)
+    fbp.set_depth_bits(24)
+    fbp.set_multisamples(VIEW_MULTISAMPLES)
+    return fbp
+
+
 def one_line(text: str) -> str:
     """The first sentence of a task's description."""
     text = " ".join(text.split())
@@ -79,7 +91,11 @@ class TrainingApp:
         if self.offscreen:
             display.offscreen_pipe()   # fails early, naming the packages, where EGL is missing
             loadPrcFileData("surrol_data_gui", "load-display p3headlessgl\n")
-        loadPrcFileData("surrol_data_gui", f"win-size {size[0]} {size[1]}\nwindow-title surrol_data training\n")
+        # The window itself is not multisampled: all it draws is axis-aligned 2D (panel, text, the view's card), which
+        # comes out the same pixel for pixel without it, at half the CPU of a frame on llvmpipe; the views of the
+        # scene (the endoscope view, the task pictures) are multisampled in their own buffers (`_view_fbp`).
+        loadPrcFileData("surrol_data_gui", f"win-size {size[0]} {size[1]}\nwindow-title surrol_data training\n"
+                                           "framebuffer-multisample false\nmultisamples 0\n")
         from direct.showbase.ShowBase import ShowBase
 
         self.base = ShowBase(windowType="offscreen" if self.offscreen else "onscreen")
@@ -136,7 +152,7 @@ class TrainingApp:
         window draws up to 30 frames/s for the HUD, the clicks and the keys. On a software rasteriser (Mesa's
         llvmpipe) the shaded view is ~85 % of a frame's CPU, so it is drawn only when the scene has changed and
         the window's other frames show the same image again: what the surgeon sees is the same, pixel for pixel."""
-        from panda3d.core import CardMaker, FrameBufferProperties, SamplerState, Texture
+        from panda3d.core import CardMaker, SamplerState, Texture
 
         from surrol_data.render.stage import endoscope_lens
 
@@ -147,12 +163,8 @@ class TrainingApp:
         self._view_tex = Texture("endoscope_view")
         self._view_tex.set_minfilter(SamplerState.FT_nearest)
         self._view_tex.set_magfilter(SamplerState.FT_nearest)
-        fbp = FrameBufferProperties()
-        fbp.set_rgb_color(True)
-        fbp.set_rgba_bits(8, 8, 8, 8)
-        fbp.set_depth_bits(24)
-        fbp.set_multisamples(VIEW_MULTISAMPLES)
-        self._view_buffer = self.base.win.make_texture_buffer("endoscope_view", w, h, self._view_tex, False, fbp)
+        self._view_buffer = self.base.win.make_texture_buffer("endoscope_view", w, h, self._view_tex, False,
+                                                              _view_fbp())
         self._view_buffer.set_clear_color(self.base.get_background_color())
         self._view_cam = self.base.make_camera(self._view_buffer, lens=endoscope_lens(w, h))
         card = CardMaker("endoscope_view_card")
@@ -290,7 +302,7 @@ class TrainingApp:
             view = EnvEndoscope(env)
             stage = EndoscopeStage(view.client, view.scene_scale)
             tex = Texture(f"picture-{task}")
-            buffer = self.base.win.make_texture_buffer(f"picture-{task}", *THUMBNAIL, tex, True)
+            buffer = self.base.win.make_texture_buffer(f"picture-{task}", *THUMBNAIL, tex, True, _view_fbp())
             buffer.set_clear_color((0, 0, 0, 1))
             cam = self.base.make_camera(buffer, lens=endoscope_lens(*THUMBNAIL))
             cam.reparent_to(stage.root)
