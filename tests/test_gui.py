@@ -342,13 +342,57 @@ def relative_luminance(rgb: np.ndarray) -> np.ndarray:
     return linear @ np.array([0.2126, 0.7152, 0.0722])
 
 
-def text_contrast(app, text) -> float:
-    """WCAG contrast of an OnscreenText's drawn text (its brightest pixels) against what surrounds the letters in
-    its box (the box's median pixel: letters cover a minority of it)."""
+def window_pixels(app) -> np.ndarray:
+    """The window as drawn now (rows top to bottom, RGB)."""
     app.base.graphicsEngine.render_frame()
     tex = app.base.win.get_screenshot()
     w, h = tex.get_x_size(), tex.get_y_size()
-    shot = np.frombuffer(tex.get_ram_image_as("RGB"), np.uint8).reshape(h, w, 3)[::-1]
+    return np.frombuffer(tex.get_ram_image_as("RGB"), np.uint8).reshape(h, w, 3)[::-1]
+
+
+def view_pixels(app) -> np.ndarray:
+    """The window's endoscope view, less a margin where the HUD plates sit."""
+    from surrol_data.gui.app import CONTROLS_FRACTION, PANEL_FRACTION
+
+    shot = window_pixels(app)
+    h, w = shot.shape[:2]
+    return shot[int(0.3 * h):int((1 - CONTROLS_FRACTION) * h * 0.8), int(PANEL_FRACTION * w) + 20:w - 20]
+
+
+def test_the_view_is_drawn_when_the_scene_changes_and_shown_again_between(tmp_path):
+    """The endoscope view is shaded only in a frame after the scene changed (on llvmpipe it is most of a frame's
+    CPU); the frames between show the same image, and a moved tool shows in the next frame."""
+    from surrol_data.gui.app import TrainingApp
+
+    app = TrainingApp(out=tmp_path, offscreen=True, size=(640, 400))
+    try:
+        app.choose_task("NeedlePick")
+        for _ in range(3):
+            app.frame()
+        assert not app._view_buffer.is_active() and not app._stage.light.shadow.is_active()
+        still = view_pixels(app).copy()
+        for _ in range(2):
+            app.frame()
+        assert np.array_equal(view_pixels(app), still), "a frame between changes did not show the same view"
+        env = app._preview_env
+        action = np.zeros(env.action_space.shape, np.float32)
+        action[2] = 1.0   # the tool moves (down, towards the pad)
+        for _ in range(3):
+            env.step(action)
+        app._sync_scene()
+        app.frame()
+        moved = view_pixels(app)
+        changed = (np.abs(moved.astype(int) - still).max(axis=2) > 30).mean()
+        assert changed > 0.001, f"the moved tool did not show ({changed:.2%} of the view changed)"
+    finally:
+        app.close()
+
+
+def text_contrast(app, text) -> float:
+    """WCAG contrast of an OnscreenText's drawn text (its brightest pixels) against what surrounds the letters in
+    its box (the box's median pixel: letters cover a minority of it)."""
+    shot = window_pixels(app)
+    h, w = shot.shape[:2]
     lo, hi = text.get_tight_bounds(app.base.aspect2d)
     aspect = w / h
     cols = [int(round((x / aspect + 1) / 2 * w)) for x in (lo[0], hi[0])]
@@ -371,9 +415,13 @@ def test_hud_text_reads_on_any_background(tmp_path):
         app.frame()
         assert app.keys_text.getText().startswith("w a s d")
         for background in ("scene", "white"):
-            if background == "white":
+            if background == "white":   # the view is drawn into its own buffer: that is what turns white
                 app.base.render.hide()
                 app.base.set_background_color(1, 1, 1, 1)
+                app._view_buffer.set_clear_color((1, 1, 1, 1))
+                app._redraw_view()
+                app.frame()
+                assert view_pixels(app).min() == 255, "the view did not turn white"
             for name, text in (("HUD", app.hud_text), ("key line", app.keys_text)):
                 contrast = text_contrast(app, text)
                 assert contrast >= 4.5, f"{name} over the {background}: contrast {contrast:.1f}:1 (< 4.5:1)"
