@@ -57,18 +57,6 @@ class _WindowClosed(RuntimeError):
     """Raised in the session thread when the window closes while a step waits to be drawn."""
 
 
-def _view_fbp():
-    """The frame buffer of a view of the scene: 8-bit RGBA, depth, ``VIEW_MULTISAMPLES``× anti-aliasing."""
-    from panda3d.core import FrameBufferProperties
-
-    fbp = FrameBufferProperties()
-    fbp.set_rgb_color(True)
-    fbp.set_rgba_bits(8, 8, 8, 8)
-    fbp.set_depth_bits(24)
-    fbp.set_multisamples(VIEW_MULTISAMPLES)
-    return fbp
-
-
 def one_line(text: str) -> str:
     """The first sentence of a task's description."""
     text = " ".join(text.split())
@@ -93,7 +81,7 @@ class TrainingApp:
             loadPrcFileData("surrol_data_gui", "load-display p3headlessgl\n")
         # The window itself is not multisampled: all it draws is axis-aligned 2D (panel, text, the view's card), which
         # comes out the same pixel for pixel without it, at half the CPU of a frame on llvmpipe; the views of the
-        # scene (the endoscope view, the task pictures) are multisampled in their own buffers (`_view_fbp`).
+        # scene (the endoscope view, the task pictures) are multisampled in their own buffers (`view_framebuffer`).
         loadPrcFileData("surrol_data_gui", f"win-size {size[0]} {size[1]}\nwindow-title surrol_data training\n"
                                            "framebuffer-multisample false\nmultisamples 0\n")
         from direct.showbase.ShowBase import ShowBase
@@ -154,7 +142,7 @@ class TrainingApp:
         the window's other frames show the same image again: what the surgeon sees is the same, pixel for pixel."""
         from panda3d.core import CardMaker, SamplerState, Texture
 
-        from surrol_data.render.stage import endoscope_lens
+        from surrol_data.render.stage import endoscope_lens, view_framebuffer
 
         # The view's pixels, rounded as Panda3D rounds a display region's edges, so the card maps texels 1:1.
         left, bottom = round(PANEL_FRACTION * self.size[0]), round(CONTROLS_FRACTION * self.size[1])
@@ -164,7 +152,7 @@ class TrainingApp:
         self._view_tex.set_minfilter(SamplerState.FT_nearest)
         self._view_tex.set_magfilter(SamplerState.FT_nearest)
         self._view_buffer = self.base.win.make_texture_buffer("endoscope_view", w, h, self._view_tex, False,
-                                                              _view_fbp())
+                                                              view_framebuffer(VIEW_MULTISAMPLES))
         self._view_buffer.set_clear_color(self.base.get_background_color())
         self._view_cam = self.base.make_camera(self._view_buffer, lens=endoscope_lens(w, h))
         card = CardMaker("endoscope_view_card")
@@ -293,7 +281,7 @@ class TrainingApp:
         from panda3d.core import Texture
 
         from surrol_data.render.env_view import EnvEndoscope
-        from surrol_data.render.stage import EndoscopeStage, endoscope_lens
+        from surrol_data.render.stage import EndoscopeStage, endoscope_lens, view_framebuffer
 
         pictures = {}
         for task in TASKS:
@@ -302,7 +290,8 @@ class TrainingApp:
             view = EnvEndoscope(env)
             stage = EndoscopeStage(view.client, view.scene_scale)
             tex = Texture(f"picture-{task}")
-            buffer = self.base.win.make_texture_buffer(f"picture-{task}", *THUMBNAIL, tex, True, _view_fbp())
+            buffer = self.base.win.make_texture_buffer(f"picture-{task}", *THUMBNAIL, tex, True,
+                                                       view_framebuffer(VIEW_MULTISAMPLES))
             buffer.set_clear_color((0, 0, 0, 1))
             cam = self.base.make_camera(buffer, lens=endoscope_lens(*THUMBNAIL))
             cam.reparent_to(stage.root)

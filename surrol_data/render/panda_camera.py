@@ -16,7 +16,6 @@ from panda3d.core import (
     AntialiasAttrib,
     Camera,
     ColorAttrib,
-    FrameBufferProperties,
     GraphicsEngine,
     GraphicsOutput,
     GraphicsPipe,
@@ -34,7 +33,7 @@ from panda3d.core import (
 from surrol_data.envs.camera import FAR_M, NEAR_M, CameraImage, _checked_size
 from surrol_data.render.display import RendererUnavailable, offscreen_pipe
 from surrol_data.render.scene_mirror import SEGMENTATION_TAG
-from surrol_data.render.stage import EndoscopeStage, endoscope_lens
+from surrol_data.render.stage import EndoscopeStage, endoscope_lens, view_framebuffer
 
 _OVERRIDE = 1000   # beats every state the mirror sets on its nodes
 BACKGROUND = (0.0, 0.0, 0.0)   # the cavity beyond the light's reach is dark
@@ -79,11 +78,7 @@ class PandaEndoscopeCamera:
         self._drawn = False
 
     def _buffer(self, pipe, name: str, multisamples: int, colour: Texture, depth: Texture | None, host=None):
-        fbp = FrameBufferProperties()
-        fbp.set_rgb_color(True)
-        fbp.set_rgba_bits(8, 8, 8, 8)
-        fbp.set_depth_bits(24)
-        fbp.set_multisamples(multisamples)
+        fbp = view_framebuffer(multisamples)
         props = WindowProperties.size(self.width, self.height)
         flags = GraphicsPipe.BF_refuse_window
         if host is None:

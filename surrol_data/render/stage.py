@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 
-from panda3d.core import AntialiasAttrib, NodePath, PerspectiveLens, Point3, Vec3
+from panda3d.core import AntialiasAttrib, FrameBufferProperties, NodePath, PerspectiveLens, Point3, Vec3
 
 from surrol_data.envs.camera import FAR_M, FOV_DEG, NEAR_M, TAN_HALF_FOV, camera_axes
 from surrol_data.render.endoscope_light import MAX_EXPOSURE_DISTANCE_M, SHADOW_MAP_SIZE, EndoscopeLight
@@ -23,6 +23,16 @@ def endoscope_lens(width: int, height: int) -> PerspectiveLens:
     lens.set_fov(math.degrees(2 * math.atan(TAN_HALF_FOV * aspect)), FOV_DEG)
     lens.set_near_far(NEAR_M, FAR_M)
     return lens
+
+
+def view_framebuffer(multisamples: int) -> FrameBufferProperties:
+    """The frame buffer of a view of the scene: 8-bit RGBA, 24-bit depth, ``multisamples``× anti-aliasing."""
+    fbp = FrameBufferProperties()
+    fbp.set_rgb_color(True)
+    fbp.set_rgba_bits(8, 8, 8, 8)
+    fbp.set_depth_bits(24)
+    fbp.set_multisamples(multisamples)
+    return fbp
 
 
 class EndoscopeStage:
