@@ -4,12 +4,11 @@ demos, the human frames each cost, and round 0. Rerunning the experiment without
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import pytest
 
-from surrol_data.study.interventions import InterventionSpec, read_results, summary_rows
+from surrol_data.study.interventions import read_results, recorded_spec, summary_rows
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "docs" / "results" / "interventions"
@@ -23,8 +22,7 @@ def paragraph() -> str:
 
 
 def test_the_paragraph_states_the_committed_results(paragraph):
-    recorded = json.loads((RESULTS / "spec.json").read_text())
-    spec = InterventionSpec(**{**recorded, "tasks": tuple(recorded["tasks"]), "seeds": tuple(recorded["seeds"])})
+    spec = recorded_spec(RESULTS)
     table = summary_rows(read_results(RESULTS), spec)
 
     def cell(task: str, arm: str, round_: int) -> dict:

@@ -77,11 +77,13 @@ class InterventionSpec:
         return f"{self.skill}1"
 
 
+def _as_tuples(values: dict) -> dict:
+    """``tasks`` and ``seeds`` as the spec holds them (tuples), from a config block or ``spec.json`` (lists)."""
+    return {k: tuple(v) if k in ("tasks", "seeds") else v for k, v in values.items()}
+
+
 def load_intervention_spec(experiment: str = "interventions", overrides: Sequence[str] = ()) -> InterventionSpec:
-    values = experiment_block(experiment, "interventions", overrides, "experiment=interventions")
-    for key in ("tasks", "seeds"):
-        if key in values:
-            values[key] = tuple(values[key])
+    values = _as_tuples(experiment_block(experiment, "interventions", overrides, "experiment=interventions"))
     unknown = set(values) - set(InterventionSpec.__dataclass_fields__)
     if unknown:
         raise ValueError(f"interventions: unknown key(s) {sorted(unknown)}; known: "
@@ -222,6 +224,11 @@ class _Cell:
 
 
 # ---- the whole experiment and its report --------------------------------------------------------------------------
+
+def recorded_spec(out: str | Path) -> InterventionSpec:
+    """The configuration the run in ``out`` recorded (``spec.json``, written by :func:`run_interventions`)."""
+    return InterventionSpec(**_as_tuples(json.loads((Path(out) / "spec.json").read_text())))
+
 
 def read_results(out: Path) -> list[dict]:
     path = Path(out) / RESULTS
