@@ -43,6 +43,7 @@ from surrol_data.algos.ddpg import DDPGConfig
 from surrol_data.algos.demos import load_demos
 from surrol_data.algos.ensemble import EnsembleDDPG
 from surrol_data.algos.env_pool import EnvPool
+from surrol_data.algos.heap import release_free_heap
 from surrol_data.algos.learner_threads import LearnerThreads
 from surrol_data.algos.replay import EpisodeReplay, rng_from_tensor, rng_state_tensor
 from surrol_data.algos.train import (CHECKPOINT_FORMAT, EVAL_SEED_BASE, LAUNCH_SETTINGS, TRAIN_SEED_STRIDE, RunLog,
@@ -214,8 +215,11 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
     pending_save: list[list[dict]] = []
 
     def write_checkpoints() -> None:
+        if not pending_save:
+            return
         while pending_save:
             _write_checkpoints(members, pending_save.pop(0))
+        release_free_heap()   # the epoch's freed copies: without this the process grew by GBs (algos/heap.py)
 
     bar = tqdm(total=s.epochs, initial=members[0].state["epoch"], unit="epoch", disable=not progress,
                desc=f"train {len(members)} runs {first.env_id.split('/')[-1]}")
