@@ -12,6 +12,10 @@ is the objects in view: the blocks of MisOrient, StaticTrack and ActiveTrack mus
 stand on, and ECMReach's only object, its translucent goal marker, is a cue for the eye rather than a thing in the
 cavity and must cast none.
 
+The instrument is shaded as a solid of its shape: the shaft reads round (brighter and darker across its width), which
+TinyRenderer's own tessellation of a primitive cannot show (its normals point from the primitive's centre, so a
+long cylinder is lit the same across its width).
+
 Panda3D cases skip (naming the Debian packages) where it cannot open an offscreen OpenGL buffer.
 """
 
@@ -222,3 +226,75 @@ def test_the_needle_mesh_file_is_what_the_geometry_makes():
     assert instrument_geometry.NEEDLE_MESH_FILE.read_text() == made, \
         "envs/meshes/needle.obj is stale: remake it with instrument_geometry.write_needle_mesh(" \
         "objects.NEEDLE_RADIUS, objects.NEEDLE_WIRE_RADIUS)"
+
+
+def test_the_instrument_mesh_files_are_what_the_geometry_makes():
+    from surrol_data.envs import instrument_geometry
+
+    made = instrument_geometry.instrument_obj_texts()
+    stale = [path.name for path, text in made.items() if not path.is_file() or path.read_text() != text]
+    assert not stale, f"envs/meshes/{stale[0]} is stale: remake it with instrument_geometry.write_instrument_meshes()"
+    on_disk = {p.name for p in instrument_geometry.MESH_DIR.glob("*.obj")} - {instrument_geometry.NEEDLE_MESH_FILE.name}
+    assert on_disk == {p.name for p in made}, "envs/meshes holds instrument meshes the geometry no longer makes"
+
+
+def test_the_instruments_visual_shapes_are_the_meshes_with_their_colours():
+    """What PyBullet hands back to the Panda3D mirror and to Rerun: each tool link's visual shapes are the piece's
+    OBJ meshes (one per colour), at the scene's scale, in the link's frame."""
+    from surrol_data.envs import instrument_geometry
+    from surrol_data.envs.physics import pb
+
+    env = gym.make(env_id("NeedlePick"), render_mode="rgb_array")
+    try:
+        env.reset(seed=0)
+        psm = psms_of(env)[0]
+        shapes = env.unwrapped.client.getVisualShapeData(psm.body)
+        for link, piece in ((3, "shaft"), (4, "wrist"), (6, "jaw_plus"), (7, "jaw_minus")):
+            got = [(s[2], s[4].decode(), tuple(np.round(s[3], 6)), tuple(np.round(s[7], 3)))
+                   for s in shapes if s[1] == link]
+            want = [(pb.GEOM_MESH, str(path), (SCALING,) * 3, tuple(np.round(colour, 3)))
+                    for path, colour in instrument_geometry.piece_mesh_files(piece)]
+            assert got == want, f"link {link} ({piece}): {got}"
+    finally:
+        env.close()
+
+
+SHAFT_ROUND = 5.0   # luminance levels (of 255) across the shaft's width: 0 with centre normals, 11–70 round (measured)
+
+
+@pytest.mark.parametrize("renderer", ["tiny", pytest.param("panda3d", marks=needs_panda3d)])
+def test_the_shaft_is_shaded_round_across_its_width(renderer):
+    """Across the black shaft, 2–4 cm above the wrist, the luminance varies as over a cylinder (light falling on it
+    from the scope's side); a shaft drawn with normals along its axis is one flat tone across."""
+    size = (640, 480)
+    env = gym.make(env_id("NeedlePick"), render_mode="rgb_array")
+    try:
+        env.reset(seed=0)
+        view = EnvEndoscope(env)
+        pose = view.pose()
+        psm = psms_of(env)[0]
+        hover_in_view(psm, view.client, pose, view.scene_scale, height_m=0.015)
+        camera = make_camera(view.client, size, view.scene_scale, renderer)
+        image = camera.render(pose, segmentation=True)
+        if hasattr(camera, "close"):
+            camera.close()
+        lum = luminance(image.rgb)
+        axes, aspect = camera_axes(pose), size[0] / size[1]
+        pos, rot = psm.link_pose_world(3)   # tool roll: z along the shaft towards the tip
+        ranges = []
+        for d in (0.02, 0.03, 0.04):
+            a, b = (np.array(pixel_of(project(axes, pos + rot @ [0.0, 0.0, -z], aspect)[:2], *size))
+                    for z in (d, d + 0.001))
+            along = (b - a) / np.linalg.norm(b - a)
+            across = np.array([-along[1], along[0]])
+            values = []
+            for t in np.arange(-15.0, 15.5, 0.5):
+                c, r = np.round(a + t * across).astype(int)
+                if 0 <= r < size[1] and 0 <= c < size[0] and image.segmentation[r, c] == psm.body \
+                        and lum[r, c] < 90:   # the black shaft, not the steel or the scene behind
+                    values.append(lum[r, c])
+            assert len(values) >= 6, f"the shaft is {len(values)} samples wide {100 * d:.0f} cm above the wrist"
+            ranges.append(float(np.ptp(values)))
+        assert min(ranges) >= SHAFT_ROUND, f"across the shaft the luminance varies by {ranges} levels: it looks flat"
+    finally:
+        env.close()

@@ -17,15 +17,23 @@ other dark — a striped needle. The mesh carries the tube's true normals; it is
 (an OBJ that :func:`needle_obj_text` makes, kept in the package) because PyBullet hands a mesh's triangles back to
 the other renderers only as a file name.
 
-These parts become the PyBullet *visual* shapes of the bodies (:func:`visual_shape_array`), so TinyRenderer draws
-them, and the Panda3D mirror and the Rerun meshes read them back from PyBullet — one geometry for the three.
+The instrument's parts are meshed the same way, for the same reason: TinyRenderer's centre-based normals shade a
+long shaft as if it were a ball (light or dark along its length, never round across it) and a flat blade face as a
+gradient towards its corners. Each piece of the instrument (:data:`PIECES`: the shaft with its clevis, the wrist,
+each jaw blade) is one OBJ per colour in ``MESH_DIR`` (:func:`instrument_obj_texts`, remade by
+:func:`write_instrument_meshes`): the parts' triangles (:mod:`~surrol_data.envs.primitive_meshes`, the meshes the
+renderers draw for primitives) placed in the link's frame, with flat normals on flat faces and round ones on round
+faces.
+
+These meshes become the PyBullet *visual* shapes of the bodies (:func:`instrument_visual_shape`), so TinyRenderer
+draws them, and the Panda3D mirror and the Rerun meshes read them back from PyBullet — one geometry for the three.
 Collision shapes are built elsewhere (``psm.py``, ``objects.py``) and do not depend on this module: the physics
 is the same whatever the instruments look like.
 
 Frames (the PSM's link frames, :mod:`surrol_data.envs.psm`): tool roll (link 3): origin on the wrist-pitch axis,
 z along the shaft towards the tip, pitch axis = y. Wrist pitch (link 4): z = pitch axis, x along the wrist to
 the yaw axis. Jaws (links 6, 7): origin on the yaw axis (z), blades along +y, blade ``s`` opening towards s·x.
-Sizes in real metres; :func:`visual_shape_array` scales them to the scene.
+Sizes in real metres; :func:`instrument_visual_shape` scales them to the scene.
 """
 
 from __future__ import annotations
@@ -35,6 +43,9 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
+
+from surrol_data.envs import kinematics as kin
+from surrol_data.envs import primitive_meshes
 from surrol_data.envs.physics import pb
 
 SHAFT_RADIUS_M = 0.004      # 8 mm EndoWrist shaft
@@ -48,12 +59,15 @@ STEEL = (0.58, 0.58, 0.62, 1.0)
 DARK_STEEL = (0.42, 0.42, 0.46, 1.0)
 GRIP = (0.25, 0.25, 0.28, 1.0)
 
+COLOUR_NAMES = {SHAFT_BLACK: "black", STEEL: "steel", DARK_STEEL: "dark_steel", GRIP: "grip"}   # in file names
+
 MAX_SHAPES_PER_ARRAY = 16     # createVisualShapeArray segfaults with more
 NEEDLE_TAPER = 0.2            # the last 20 % of the arc narrows to the point
 NEEDLE_POINT = 0.5            # the point keeps this share of the wire's radius (a finer one drops out of TinyRenderer)
 NEEDLE_RINGS = 72             # cross-sections along the arc: 2.5° apart, the silhouette reads smooth
 NEEDLE_SIDES = 10             # vertices round the wire
-NEEDLE_MESH_FILE = Path(__file__).with_name("meshes") / "needle.obj"
+MESH_DIR = Path(__file__).with_name("meshes")
+NEEDLE_MESH_FILE = MESH_DIR / "needle.obj"
 
 
 class Part(NamedTuple):
@@ -128,9 +142,86 @@ def blade_parts(sign: float) -> list[Part]:
     ]
 
 
-def tool_link_parts(wrist_length: float) -> dict[int, list[Part]]:
-    """The instrument's parts on the PSM's tool links (3 roll, 4 wrist pitch); the blades: :func:`blade_parts`."""
-    return {3: roll_link_parts(), 4: wrist_link_parts(wrist_length)}
+# The instrument's pieces, each drawn on one link of the PSM (psm.py: link 3 tool roll, 4 wrist pitch, 6 and 7 the
+# jaw blades opening towards +x and −x).
+PIECES = ("shaft", "wrist", "jaw_plus", "jaw_minus")
+
+
+def piece_parts(piece: str) -> list[Part]:
+    """The parts of one of :data:`PIECES`, in its link's frame."""
+    if piece == "shaft":
+        return roll_link_parts()
+    if piece == "wrist":
+        return wrist_link_parts(kin.WRIST_LENGTH)
+    if piece in ("jaw_plus", "jaw_minus"):
+        return blade_parts(+1.0 if piece == "jaw_plus" else -1.0)
+    raise ValueError(f"unknown instrument piece {piece!r}; the pieces are {', '.join(PIECES)}")
+
+
+def part_mesh(part: Part) -> primitive_meshes.Mesh:
+    """The part's surface in its link's frame (real metres)."""
+    if part.kind == "box":
+        mesh = primitive_meshes.box(part.size)
+    elif part.kind == "cylinder":
+        mesh = primitive_meshes.cylinder(part.size[1], part.size[0])
+    elif part.kind == "capsule":
+        mesh = primitive_meshes.capsule(part.size[1], part.size[0])
+    elif part.kind == "sphere":
+        mesh = primitive_meshes.sphere(part.size[0])
+    else:
+        raise ValueError(f"unknown part kind {part.kind!r}; use box, cylinder, capsule or sphere")
+    rot = np.array(pb.getMatrixFromQuaternion(part_quaternion(part))).reshape(3, 3)
+    return primitive_meshes.Mesh(mesh.positions @ rot.T + np.asarray(part.position), mesh.normals @ rot.T,
+                                 mesh.uvs, mesh.triangles)
+
+
+def _colours(parts: list[Part]) -> list[tuple]:
+    """The parts' colours, each once, in the parts' order."""
+    return list(dict.fromkeys(p.colour for p in parts))
+
+
+def piece_mesh_files(piece: str) -> list[tuple[Path, tuple]]:
+    """(OBJ file, colour) of each colour of ``piece``: the files :func:`instrument_visual_shape` builds it from."""
+    return [(MESH_DIR / f"{piece}_{COLOUR_NAMES[colour]}.obj", colour) for colour in _colours(piece_parts(piece))]
+
+
+def instrument_obj_texts() -> dict[Path, str]:
+    """Every instrument mesh file's OBJ text: per piece and colour, the parts of that colour merged."""
+    texts = {}
+    for piece in PIECES:
+        parts = piece_parts(piece)
+        for path, colour in piece_mesh_files(piece):
+            mesh = primitive_meshes.merge(*[part_mesh(p) for p in parts if p.colour == colour])
+            texts[path] = obj_text(f"the instrument's {piece} ({COLOUR_NAMES[colour]} parts): "
+                                   "surrol_data.envs.instrument_geometry.instrument_obj_texts(); remade by "
+                                   "write_instrument_meshes(), do not edit",
+                                   mesh.positions, mesh.normals, mesh.triangles)
+    return texts
+
+
+def write_instrument_meshes() -> list[Path]:
+    """Remake the instrument's OBJ files in ``MESH_DIR`` after changing a part, a size or a colour here."""
+    MESH_DIR.mkdir(exist_ok=True)
+    texts = instrument_obj_texts()
+    for path, text in texts.items():
+        path.write_text(text)
+    return list(texts)
+
+
+def instrument_visual_shape(client, piece: str, scale: float) -> int:
+    """The PyBullet visual shape of one of :data:`PIECES`: its mesh files, built ``scale`` times larger than real."""
+    files = piece_mesh_files(piece)
+    if len(files) > MAX_SHAPES_PER_ARRAY:   # PyBullet crashes the process beyond it
+        raise ValueError(f"{len(files)} meshes in one visual shape; PyBullet takes at most {MAX_SHAPES_PER_ARRAY}")
+    missing = [str(path) for path, _ in files if not path.is_file()]
+    if missing:
+        raise FileNotFoundError(f"instrument mesh {missing[0]} is missing: remake the meshes with "
+                                "surrol_data.envs.instrument_geometry.write_instrument_meshes()")
+    n = len(files)
+    return client.createVisualShapeArray(
+        [pb.GEOM_MESH] * n, fileNames=[str(path) for path, _ in files], meshScales=[[scale] * 3] * n,
+        rgbaColors=[list(colour) for _, colour in files],
+        visualFramePositions=[[0.0, 0.0, 0.0]] * n, visualFrameOrientations=[[0.0, 0.0, 0.0, 1.0]] * n)
 
 
 def needle_mesh(radius: float, wire_radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -167,21 +258,27 @@ def needle_mesh(radius: float, wire_radius: float) -> tuple[np.ndarray, np.ndarr
     return np.concatenate(points), np.concatenate(directions), np.concatenate(triangles)
 
 
-def needle_obj_text(radius: float, wire_radius: float) -> str:
-    """:func:`needle_mesh` as Wavefront OBJ text (a normal per vertex, sharing its index, as PyBullet reads it)."""
-    positions, normals, triangles = needle_mesh(radius, wire_radius)
-    lines = [f"# the needle's visual surface: surrol_data.envs.instrument_geometry.needle_obj_text({radius}, "
-             f"{wire_radius}); remade by write_needle_mesh(radius, wire_radius), do not edit"]
+def obj_text(header: str, positions, normals, triangles) -> str:
+    """Wavefront OBJ text of a mesh (a normal per vertex, sharing its index, as PyBullet and
+    :func:`surrol_data.render.body_shapes.obj_mesh` read it), under a ``# header`` comment line."""
+    lines = [f"# {header}"]
     lines += [f"v {x:.7f} {y:.7f} {z:.7f}" for x, y, z in positions]
     lines += [f"vn {x:.5f} {y:.5f} {z:.5f}" for x, y, z in normals]
-    lines += [f"f {a}//{a} {b}//{b} {c}//{c}" for a, b, c in triangles + 1]
+    lines += [f"f {a}//{a} {b}//{b} {c}//{c}" for a, b, c in np.asarray(triangles) + 1]
     return "\n".join(lines) + "\n"
+
+
+def needle_obj_text(radius: float, wire_radius: float) -> str:
+    """:func:`needle_mesh` as Wavefront OBJ text."""
+    return obj_text(f"the needle's visual surface: surrol_data.envs.instrument_geometry.needle_obj_text({radius}, "
+                    f"{wire_radius}); remade by write_needle_mesh(radius, wire_radius), do not edit",
+                    *needle_mesh(radius, wire_radius))
 
 
 def write_needle_mesh(radius: float, wire_radius: float) -> Path:
     """Remake ``NEEDLE_MESH_FILE`` after changing the needle's sizes (``objects.NEEDLE_RADIUS``,
     ``objects.NEEDLE_WIRE_RADIUS``, which ``objects`` passes here) or this module."""
-    NEEDLE_MESH_FILE.parent.mkdir(exist_ok=True)
+    MESH_DIR.mkdir(exist_ok=True)
     NEEDLE_MESH_FILE.write_text(needle_obj_text(radius, wire_radius))
     return NEEDLE_MESH_FILE
 
@@ -194,27 +291,3 @@ def needle_visual_shape(client, scale: float, colour) -> int:
 
 def part_quaternion(part: Part) -> tuple:
     return _AXIS_QUAT[part.axis] if isinstance(part.axis, str) else tuple(part.axis)
-
-
-_KINDS = {"box": pb.GEOM_BOX, "cylinder": pb.GEOM_CYLINDER, "capsule": pb.GEOM_CAPSULE, "sphere": pb.GEOM_SPHERE}
-
-
-def visual_shape_array(client, parts: list[Part], scale: float) -> int:
-    """One PyBullet visual shape (array) of ``parts``, built ``scale`` times larger than real."""
-    if len(parts) > MAX_SHAPES_PER_ARRAY:   # PyBullet crashes the process beyond it
-        raise ValueError(f"{len(parts)} parts in one visual shape; PyBullet takes at most {MAX_SHAPES_PER_ARRAY}")
-    half, radii, lengths = [], [], []
-    for p in parts:
-        if p.kind == "box":
-            half.append([v * scale / 2 for v in p.size])
-            radii.append(0.0)
-            lengths.append(0.0)
-        else:
-            half.append([0.0, 0.0, 0.0])
-            radii.append(p.size[0] * scale)
-            lengths.append(p.size[1] * scale if len(p.size) > 1 else 0.0)
-    return client.createVisualShapeArray(
-        [_KINDS[p.kind] for p in parts], halfExtents=half, radii=radii, lengths=lengths,
-        rgbaColors=[list(p.colour) for p in parts],
-        visualFramePositions=[[v * scale for v in p.position] for p in parts],
-        visualFrameOrientations=[list(part_quaternion(p)) for p in parts])

@@ -136,8 +136,8 @@ class Psm:
             viss.append(-1)
         # Visuals: the EndoWrist of instrument_geometry (shaft, clevis, wrist, blades), one shape array per link.
         if self.visual:
-            for link, parts in instrument_geometry.tool_link_parts(kin.WRIST_LENGTH).items():
-                viss[link] = instrument_geometry.visual_shape_array(c, parts, S)
+            viss[3] = instrument_geometry.instrument_visual_shape(c, "shaft", S)
+            viss[4] = instrument_geometry.instrument_visual_shape(c, "wrist", S)
         # The shaft collides too (the reference's tool-roll link has a collision mesh): an 8 mm capsule whose lower
         # cap ends at the wrist, so a tool swept sideways stops on a tray wall or a peg instead of passing through.
         # Only its lowest 6 cm can reach anything on the table (the peg tops, the highest things there, are
@@ -156,7 +156,7 @@ class Psm:
         for sign in (+1.0, -1.0):
             centre = np.array([sign * _JAW_HALF[0], _JAW_HALF[1], 0.0]) * S
             cols.append(convex_box(c, _JAW_HALF * S, centre))
-            viss.append(instrument_geometry.visual_shape_array(c, instrument_geometry.blade_parts(sign), S)
+            viss.append(instrument_geometry.instrument_visual_shape(c, "jaw_plus" if sign > 0 else "jaw_minus", S)
                         if self.visual else -1)
             positions.append([0, 0, 0])
             orientations.append([0, 0, 0, 1])

@@ -10,25 +10,25 @@ import functools
 import numpy as np
 
 from surrol_data.envs.physics import pb  # physics imports pybullet quietly
-from surrol_data.render import shapes
+from surrol_data.envs import primitive_meshes
 
 PRIMITIVE_KINDS = {pb.GEOM_BOX, pb.GEOM_SPHERE, pb.GEOM_CYLINDER, pb.GEOM_CAPSULE}
 
 
-def primitive_mesh(kind: int, dims) -> shapes.Mesh:
+def primitive_mesh(kind: int, dims) -> primitive_meshes.Mesh:
     """The mesh of a primitive visual shape from ``getVisualShapeData``'s kind and dimensions (scene units)."""
     if kind == pb.GEOM_BOX:
-        return shapes.box(dims)
+        return primitive_meshes.box(dims)
     if kind == pb.GEOM_SPHERE:
-        return shapes.sphere(dims[0])
+        return primitive_meshes.sphere(dims[0])
     if kind == pb.GEOM_CYLINDER:
-        return shapes.cylinder(dims[0], dims[1])
+        return primitive_meshes.cylinder(dims[0], dims[1])
     if kind == pb.GEOM_CAPSULE:
-        return shapes.capsule(dims[0], dims[1])
+        return primitive_meshes.capsule(dims[0], dims[1])
     raise ValueError(f"PyBullet geometry type {kind} is not a primitive (box, sphere, cylinder, capsule)")
 
 
-def visual_mesh(kind: int, dims, filename) -> shapes.Mesh | None:
+def visual_mesh(kind: int, dims, filename) -> primitive_meshes.Mesh | None:
     """The mesh of a visual shape from ``getVisualShapeData``'s kind, dimensions and file name (scene units):
     a primitive, or a Wavefront OBJ file scaled by its mesh scale (``dims``); None for what PyBullet does not hand
     back (a mesh given as vertices has no file) or for other mesh formats."""
@@ -38,11 +38,11 @@ def visual_mesh(kind: int, dims, filename) -> shapes.Mesh | None:
     if kind != pb.GEOM_MESH or not path.lower().endswith(".obj"):
         return None
     mesh = obj_mesh(path)
-    return shapes.Mesh(mesh.positions * np.asarray(dims, np.float32), mesh.normals, mesh.uvs, mesh.triangles)
+    return primitive_meshes.Mesh(mesh.positions * np.asarray(dims, np.float32), mesh.normals, mesh.uvs, mesh.triangles)
 
 
 @functools.cache
-def obj_mesh(path: str) -> shapes.Mesh:
+def obj_mesh(path: str) -> primitive_meshes.Mesh:
     """A triangulated OBJ file with one normal per vertex at the vertex's index (``f a//a b//b c//c``, as
     :func:`surrol_data.envs.instrument_geometry.needle_obj_text` writes them)."""
     positions, normals, triangles = [], [], []
@@ -57,7 +57,7 @@ def obj_mesh(path: str) -> shapes.Mesh:
                 triangles.append([int(v.split("/")[0]) - 1 for v in rest.split()[:3]])
     if len(normals) != len(positions):
         raise ValueError(f"{path}: {len(positions)} vertices but {len(normals)} normals (one per vertex expected)")
-    return shapes.Mesh(positions, normals, np.zeros((len(positions), 2)), triangles)
+    return primitive_meshes.Mesh(positions, normals, np.zeros((len(positions), 2)), triangles)
 
 
 def base_inertial_frame(client, body: int):

@@ -31,7 +31,8 @@ from panda3d.core import (
 )
 
 from surrol_data.envs.physics import pb  # physics imports pybullet quietly
-from surrol_data.render import body_shapes, materials, shapes
+from surrol_data.envs import primitive_meshes
+from surrol_data.render import body_shapes, materials
 from surrol_data.render.endoscope_light import NO_SHADOW, SHADOW_TAG
 
 SEGMENTATION_TAG = "pybullet_body"
@@ -47,7 +48,7 @@ def _transform(position, orientation) -> TransformState:
     return TransformState.make_pos_quat_scale(LVecBase3f(*position), _quat(orientation), LVecBase3f(1, 1, 1))
 
 
-def _geom_node(name: str, mesh: shapes.Mesh) -> GeomNode:
+def _geom_node(name: str, mesh: primitive_meshes.Mesh) -> GeomNode:
     data = GeomVertexData(name, GeomVertexFormat.get_v3n3t2(), Geom.UH_static)
     data.unclean_set_num_rows(len(mesh.positions))
     interleaved = np.concatenate([mesh.positions, mesh.normals, mesh.uvs], axis=1).astype(np.float32)
@@ -75,7 +76,7 @@ class SceneMirror:
         # body id -> (its visual shape data, its node, link index -> link node, base link-from-inertial pose)
         self._bodies: dict[int, tuple] = {}
         self._textures: dict[str, Texture] = {}
-        self._meshes: dict[tuple, tuple[GeomNode, shapes.Mesh] | None] = {}   # None: not a mesh we can read
+        self._meshes: dict[tuple, tuple[GeomNode, primitive_meshes.Mesh] | None] = {}   # None: not a mesh we can read
 
     @property
     def body_ids(self) -> list[int]:

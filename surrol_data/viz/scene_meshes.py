@@ -18,7 +18,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import rerun as rr
 
-from surrol_data.render import body_shapes, shapes
+from surrol_data.envs import primitive_meshes
+from surrol_data.render import body_shapes
 
 
 @dataclass
@@ -60,7 +61,7 @@ def link_meshes(client, scene_scale: float) -> tuple[list[LinkMesh], dict]:
             if mesh is None:
                 continue
             rot = _rotation(local_orn)
-            placed = shapes.Mesh((mesh.positions @ rot.T + np.asarray(local_pos)) / scene_scale,
+            placed = primitive_meshes.Mesh((mesh.positions @ rot.T + np.asarray(local_pos)) / scene_scale,
                                  mesh.normals @ rot.T, mesh.uvs, mesh.triangles)
             colour = np.round(np.clip(np.asarray(rgba, float), 0, 1) * 255).astype(np.uint8)
             per_link.setdefault(link, []).append((placed, np.repeat(colour[None], len(placed.positions), 0)))
@@ -68,7 +69,7 @@ def link_meshes(client, scene_scale: float) -> tuple[list[LinkMesh], dict]:
             continue
         inertial[body] = client.invertTransform(*body_shapes.base_inertial_frame(client, body))
         for link, parts in sorted(per_link.items()):
-            merged = shapes.merge(*[m for m, _ in parts])
+            merged = primitive_meshes.merge(*[m for m, _ in parts])
             meshes.append(LinkMesh(body, link, merged.positions, merged.normals, merged.triangles,
                                    np.concatenate([c for _, c in parts])))
     return meshes, inertial

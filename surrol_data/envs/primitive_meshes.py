@@ -1,4 +1,6 @@
-"""Triangle meshes (positions, normals, texture coordinates) of PyBullet's primitive visual shapes.
+"""Triangle meshes (positions, normals, texture coordinates) of PyBullet's primitive shapes: what the renderers
+draw for a primitive visual shape, and what the instruments' visual meshes are made of
+(:mod:`~surrol_data.envs.instrument_geometry`).
 
 PyBullet's conventions, which the meshes follow: a box is given by its full extents and centred on its
 frame; cylinders and capsules lie along their frame's z axis, ``length`` being the straight part (a capsule
