@@ -34,6 +34,7 @@ from surrol_data.collect.haptic_source import SKILLS, control_period_s, has_disp
 from surrol_data.envs import TASKS, env_id
 from surrol_data.envs.names import is_ecm_action
 from surrol_data.gui.hud import Hud
+from surrol_data.gui.text_fit import fit_text
 from surrol_data.render import display
 
 # The events Panda3D's GUI items send when the mouse wheel turns over them (as DirectGuiGlobals' B1PRESS for clicks).
@@ -47,7 +48,11 @@ THUMBNAIL = (192, 144)
 VIEW_MULTISAMPLES = 4       # the endoscope view's anti-aliasing (the rest of the window is axis-aligned 2D)
 # The HUD's backing: 72 % black keeps its text above 4.5:1 (WCAG AA) contrast even over a white background.
 HUD_PLATE = (0.02, 0.02, 0.03, 0.72)
+HUD_SCALE, KEYS_SCALE = 0.045, 0.035   # text sizes (window units) of the HUD and of the key lines under it
 HUD_PLATE_MARGIN = (0.4, 0.4, 0.25, 0.3)   # left, right, bottom, top, in the text's line heights
+EDGE_GAP = 0.02             # window units kept free between a text and the window's (or the view's) edge
+MIN_TEXT_SCALE = 0.75       # a text too long for its room is drawn down to this share of its size, then cut
+STATUS_MIN_ROOM = 0.75      # window units the status line gets at least, right of the buttons
 _IDLE_FRAME_S = 1 / 30
 _WHEEL_STEP = 0.08          # of the task list's height per wheel notch
 SESSION_EPISODES = 10_000   # a session records until exit unless told otherwise
@@ -208,27 +213,37 @@ class TrainingApp:
             item.bind(WHEEL_DOWN, lambda _event: self.scroll_tasks(1))
 
     def _build_controls(self) -> None:
+        """The controls under the view, laid out for a 16:9 window from the view's left edge; a narrower window
+        draws them smaller (the node they hang from is scaled), so that the buttons and the status line right of
+        them (at least ``STATUS_MIN_ROOM`` wide) stay inside it."""
         from direct.gui.DirectGui import DirectButton, DirectEntry, DirectLabel, DirectOptionMenu
         from panda3d.core import TextNode
 
         aspect = self.size[0] / self.size[1]
-        left = -aspect + 2 * aspect * PANEL_FRACTION + 0.05
-        row1, row2 = -1 + 2 * CONTROLS_FRACTION - 0.09, -1 + 0.07
-        label = dict(scale=0.04, text_align=TextNode.A_left, text_fg=(0.85, 0.85, 0.85, 1), frameColor=(0, 0, 0, 0))
+        row1, row2 = 2 * CONTROLS_FRACTION - 0.09, 0.07   # above the window's bottom edge, unscaled
+        status_x = 1.8 if self.policy is not None else 1.45
+        room = aspect - EDGE_GAP - (-aspect + 2 * aspect * PANEL_FRACTION + 0.05)
+        controls = self.base.aspect2d.attach_new_node("controls")
+        controls.set_pos(-aspect + 2 * aspect * PANEL_FRACTION + 0.05, 0, -1)
+        controls.set_scale(min(1.0, room / (status_x + STATUS_MIN_ROOM)))
+        left = 0.0
+        label = dict(scale=0.04, text_align=TextNode.A_left, text_fg=(0.85, 0.85, 0.85, 1), frameColor=(0, 0, 0, 0),
+                     parent=controls)
         DirectLabel(text="device", pos=(left, 0, row1), **label)
         self.device_menu = DirectOptionMenu(items=list(DEVICES), initialitem=DEVICES.index(self.device),
                                             scale=0.045, pos=(left + 0.14, 0, row1), command=self._set_device,
+                                            parent=controls,
                                             highlightColor=(0.6, 0.6, 0.65, 1))
         DirectLabel(text="operator", pos=(left + 0.58, 0, row1), **label)
         self.operator_entry = DirectEntry(initialText=self.operator_id, scale=0.045, width=8,
-                                          pos=(left + 0.76, 0, row1), command=self._set_operator,
+                                          pos=(left + 0.76, 0, row1), command=self._set_operator, parent=controls,
                                           focusInCommand=self._typing, focusInExtraArgs=[True],
                                           focusOutCommand=self._typing, focusOutExtraArgs=[False])
         DirectLabel(text="skill", pos=(left + 1.2, 0, row1), **label)
         self.skill_menu = DirectOptionMenu(items=list(SKILLS), initialitem=SKILLS.index(self.skill), scale=0.045,
-                                           pos=(left + 1.3, 0, row1), command=self._set_skill,
+                                           pos=(left + 1.3, 0, row1), command=self._set_skill, parent=controls,
                                            highlightColor=(0.6, 0.6, 0.65, 1))
-        button = dict(scale=0.05, frameSize=(-2.2, 2.2, -0.6, 1.0), text_fg=(1, 1, 1, 1))
+        button = dict(scale=0.05, frameSize=(-2.2, 2.2, -0.6, 1.0), text_fg=(1, 1, 1, 1), parent=controls)
         self.buttons = {
             "play": DirectButton(text="play", pos=(left + 0.12, 0, row2), command=self.play,
                                  frameColor=(0.15, 0.5, 0.2, 1), **button),
@@ -249,8 +264,10 @@ class TrainingApp:
             take.bind(DGG.B1PRESS, lambda _event: self.keys.hold(TAKEOVER_KEY, True))
             take.bind(DGG.B1RELEASE, lambda _event: self.keys.hold(TAKEOVER_KEY, False))
             self.buttons["take over"] = take
-        status_x = left + (1.8 if self.policy is not None else 1.45)
         self.status = DirectLabel(text="choose a task", pos=(status_x, 0, row2), **label)
+        self._status_scale = 0.04
+        # The room right of the status line's start, in the controls' units.
+        self._status_room = (aspect - EDGE_GAP - controls.get_x()) / controls.get_sx() - status_x
 
     def _build_hud(self) -> None:
         from direct.gui.OnscreenText import OnscreenText
@@ -258,15 +275,37 @@ class TrainingApp:
 
         aspect = self.size[0] / self.size[1]
         x = -aspect + 2 * aspect * PANEL_FRACTION + 0.04
+        self._hud_room = aspect - EDGE_GAP - x   # from the texts' left edge to the window's right edge
+        self._hud_shown: dict[int, str] = {}   # what each HUD text shows, by id
         # Light text on a dark plate: the view behind it may be anything from the black void to a lit white board,
         # and a drop shadow alone leaves light text unreadable on a light floor.
         plate = dict(bg=HUD_PLATE, shadow=(0, 0, 0, 1), mayChange=True, align=TextNode.A_left)
-        self.hud_text = OnscreenText(text="", pos=(x, 0.92), scale=0.045, fg=(0.95, 0.95, 0.6, 1), **plate)
+        self.hud_text = OnscreenText(text="", pos=(x, 0.92), scale=HUD_SCALE, fg=(0.95, 0.95, 0.6, 1), **plate)
         # The keys that work, at the foot of the view (a new user should not need the README to operate).
-        self.keys_text = OnscreenText(text="", pos=(x, -1 + 2 * CONTROLS_FRACTION + 0.09), scale=0.035,
+        self.keys_text = OnscreenText(text="", pos=(x, -1 + 2 * CONTROLS_FRACTION + 0.09), scale=KEYS_SCALE,
                                       fg=(0.85, 0.9, 1.0, 1), **plate)
         for text in (self.hud_text, self.keys_text):
             text.textNode.set_card_as_margin(*HUD_PLATE_MARGIN)
+
+    def _show_hud_text(self, text, content: str, scale: float) -> None:
+        """Show ``content`` in the HUD's ``text`` (an OnscreenText of size ``scale``), fitted to the view's width
+        (measured with its plate's right margin); only when it changed (fitting measures every line)."""
+        if self._hud_shown.get(id(text)) == content:
+            return
+        self._hud_shown[id(text)] = content
+        node = text.textNode
+        fitted, s = fit_text(content, lambda line: node.calc_width(line) + HUD_PLATE_MARGIN[1],
+                             self._hud_room, scale, MIN_TEXT_SCALE * scale) if content else (content, scale)
+        text.setScale(s)
+        text.setText(fitted)
+
+    def set_status(self, message: str) -> None:
+        """Show ``message`` in the status line right of the buttons, fitted to the room left there."""
+        node = self.status.component("text0").textNode
+        fitted, s = fit_text(message, node.calc_width, self._status_room, self._status_scale,
+                             MIN_TEXT_SCALE * self._status_scale)
+        self.status["text"] = fitted
+        self.status.set_scale(s)
 
     # ------------------------------------------------------------------ task pictures and descriptions
     @staticmethod
@@ -330,7 +369,7 @@ class TrainingApp:
         self.hud.task, self.hud.arms = task, 1 if ecm else act_dim // 5
         self.hud.period_s = control_period_s(self._preview_env)   # what the session paces its steps by
         self.hud.intervention = self.policy is not None
-        self.status["text"] = f"{task}: press play"
+        self.set_status(f"{task}: press play")
 
     def set_session(self, device: str, skill: str, operator_id: str) -> None:
         """Fill the session controls (what the menus and the operator field set)."""
@@ -360,7 +399,7 @@ class TrainingApp:
 
     def play(self) -> None:
         if self.task is None:
-            self.status["text"] = "choose a task first"
+            self.set_status("choose a task first")
             return
         if not self._session_running:
             self._play_requested = True
@@ -411,8 +450,8 @@ class TrainingApp:
         if not self._session_running:   # the menus' choices, shown before play
             self.hud.device = self.device
             self.hud.skill = "expert" if self.device == "operator" and self.skill == "unknown" else self.skill
-        self.hud_text.setText("\n".join(self.hud.lines()) if self.task else "")
-        self.keys_text.setText("\n".join(self.hud.key_lines()) if self.task else "")
+        self._show_hud_text(self.hud_text, "\n".join(self.hud.lines()) if self.task else "", HUD_SCALE)
+        self._show_hud_text(self.keys_text, "\n".join(self.hud.key_lines()) if self.task else "", KEYS_SCALE)
         drawing = self._view_frames > 0
         self._view_buffer.set_active(drawing)
         if self._stage is not None:
@@ -457,7 +496,7 @@ class TrainingApp:
         self.hud = Hud(task=task, device=self.device, skill=skill, arms=self.hud.arms,
                        intervention=self.policy is not None, period_s=self.hud.period_s)
         self._session_running = True
-        self.status["text"] = f"recording into {out.parent.name}/{out.name}"
+        self.set_status(f"recording into {out.parent.name}/{out.name}")
         self.keys.start()
         kwargs = dict(
             device=self.device, operator_id=self.operator_id or "anonymous", skill=skill, seed=self.seed,
@@ -499,9 +538,9 @@ class TrainingApp:
             raise outcome
         elif not isinstance(outcome, BaseException):
             self.last_result = outcome
-            self.status["text"] = f"saved {outcome.kept} episode(s)"
+            self.set_status(f"saved {outcome.kept} episode(s)")
         if self.last_error:
-            self.status["text"] = self.last_error[:80]
+            self.set_status(self.last_error)
         if not self.exit_requested:
             self.choose_task(task)
 
