@@ -4,7 +4,8 @@ The window is opened offscreen at each size; the texts are put in their longest 
 session's key lines, the HUD of a two-arm intervention attempt that ran out of time, a long recording path and a
 long error in the status line), and every visible text's drawn box (its backing plate included) is measured in the
 window's coordinates. The HUD and the key lines must stay on the endoscope view, the status line right of the
-buttons and left of the window's edge, the task descriptions inside the task panel.
+buttons and left of the window's edge, the task descriptions inside the task panel. And what the status line says
+stays there: a session that fails leaves its error in view.
 
 Skipped (naming the Debian packages) where Panda3D cannot render offscreen.
 """
@@ -103,6 +104,30 @@ def test_every_text_stays_inside_the_window(tmp_path, size):
         for node in app.panel.getCanvas().find_all_matches("**/+TextNode"):
             bad = inside(app, node, -aspect, panel_right, -1e9, 1e9)
             assert bad is None, f"task panel text {node.node().get_text()[:40]!r}: {bad}"
+    finally:
+        app.close()
+
+
+def test_a_session_that_fails_says_why_in_the_status_line(tmp_path):
+    """No Touch here: the session ends at once with a device error, which the status line keeps showing (the
+    task made ready for the next play used to replace it with "press play" in the same frame)."""
+    import time
+
+    from surrol_data.gui.app import TrainingApp
+
+    app = TrainingApp(out=tmp_path, offscreen=True, size=(640, 400))
+    try:
+        app.choose_task("NeedleReach")
+        app.set_session("touch", "novice", "t")
+        app.play()
+        app.frame()
+        deadline = time.monotonic() + 300
+        while app._session_thread is not None and time.monotonic() < deadline:
+            app.frame()
+        assert app.last_error and app.last_error.startswith("device:"), app.last_error
+        app.frame()
+        assert app.status["text"].startswith("device:"), f"the status line shows {app.status['text']!r}"
+        assert app.task == "NeedleReach" and not app.exit_requested   # and play works again
     finally:
         app.close()
 

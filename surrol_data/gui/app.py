@@ -538,11 +538,12 @@ class TrainingApp:
             raise outcome
         elif not isinstance(outcome, BaseException):
             self.last_result = outcome
-            self.set_status(f"saved {outcome.kept} episode(s)")
+        if not self.exit_requested:
+            self.choose_task(task)   # the task is ready for the next play (its status line is replaced below)
         if self.last_error:
             self.set_status(self.last_error)
-        if not self.exit_requested:
-            self.choose_task(task)
+        elif not isinstance(outcome, BaseException):
+            self.set_status(f"saved {outcome.kept} episode(s)")
 
     def autoplay(self, task: str, episodes: int) -> None:
         """Choose ``task``, play, and exit once ``episodes`` episodes are saved (demos, screenshots, smoke tests)."""
