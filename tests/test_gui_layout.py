@@ -3,8 +3,8 @@
 The window is opened offscreen at each size; the texts are put in their longest states (a two-handed keyboard
 session's key lines, the HUD of a two-arm intervention attempt that ran out of time, a long recording path and a
 long error in the status line), and every visible text's drawn box (its backing plate included) is measured in the
-window's coordinates. The HUD and the key lines must stay on the endoscope view, the status line right of the
-buttons and left of the window's edge, the task descriptions inside the task panel. And what the status line says
+window's coordinates. The HUD and the key lines must stay on the endoscope view, the status line under the buttons
+and left of the window's edge, the task descriptions inside the task panel. And what the status line says
 stays there: a session that fails leaves its error in view.
 
 Skipped (naming the Debian packages) where Panda3D cannot render offscreen.
@@ -92,8 +92,8 @@ def test_every_text_stays_inside_the_window(tmp_path, size):
                 bad = inside(app, text, view_left, aspect, view_bottom, 1.0)
                 if bad:
                     problems.append(f"{name} off the view: {bad}")
-            rightmost_button = max(box(b, app.base.aspect2d)[1] for b in app.buttons.values())
-            bad = inside(app, app.status, rightmost_button, aspect, -1.0, view_bottom)
+            under_buttons = min(box(b, app.base.aspect2d)[2] for b in app.buttons.values())
+            bad = inside(app, app.status, view_left, aspect, -1.0, under_buttons)
             if bad:
                 problems.append(f"status {app.status['text']!r}: {bad}")
             assert not problems, f"{size[0]}×{size[1]}:\n" + "\n".join(problems)

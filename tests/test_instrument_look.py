@@ -298,3 +298,18 @@ def test_the_shaft_is_shaded_round_across_its_width(renderer):
         assert min(ranges) >= SHAFT_ROUND, f"across the shaft the luminance varies by {ranges} levels: it looks flat"
     finally:
         env.close()
+
+
+def test_the_instrument_has_the_endowrists_sizes():
+    """The meshes as drawn (read back from their files, as the Panda3D mirror and Rerun read them): the shaft is
+    8 mm across, and each jaw blade reaches the tool tip (``kinematics.TIP_LENGTH`` from the yaw axis)."""
+    from surrol_data.envs import instrument_geometry
+    from surrol_data.render.body_shapes import obj_mesh
+
+    shaft = obj_mesh(str(instrument_geometry.MESH_DIR / "shaft_black.obj")).positions
+    assert np.hypot(shaft[:, 0], shaft[:, 1]).max() == pytest.approx(0.004, abs=1e-6)
+    assert np.ptp(shaft[:, 2]) > 0.3   # the shaft runs out of view, up to the RCM and beyond
+    for piece in ("jaw_plus", "jaw_minus"):
+        blade = np.concatenate([obj_mesh(str(path)).positions
+                                for path, _ in instrument_geometry.piece_mesh_files(piece)])
+        assert blade[:, 1].max() == pytest.approx(kin.TIP_LENGTH, abs=1e-6), piece

@@ -34,3 +34,7 @@ def test_draws_the_registered_tasks_it_is_asked_for(tmp_path):
 def test_every_registered_task_has_its_picture_in_docs():
     missing = [t for t in surrol_data.envs.TASKS if not (SCRIPT.parent / "tasks" / f"{t}.png").exists()]
     assert not missing, f"run `uv run python docs/make_task_images.py` to draw {missing}"
+    # The endoscope's view as the GUI's thumbnails and the README show it: 640×480 (issue 29).
+    sizes = {t: Image.open(SCRIPT.parent / "tasks" / f"{t}.png").size for t in surrol_data.envs.TASKS}
+    wrong = {t: size for t, size in sizes.items() if size != (640, 480)}
+    assert not wrong, f"task pictures not 640×480: {wrong}; remake them with `uv run python docs/make_task_images.py`"

@@ -2,8 +2,9 @@
 
 Layout (1280×720 by default): on the left every registered task as a card (its endoscope picture, name and
 one-line description); on the right the endoscope view drawn by :mod:`surrol_data.render` with the HUD over
-it; under the view the controls of ``collect --source haptic`` — device, operator id, skill — and the
-buttons play, redo, discard, save and exit.
+it; under the view the controls of ``collect --source haptic`` — device, operator id, skill — the buttons play,
+redo, discard, save and exit, and a status line. Every text is fitted to its room (:mod:`~surrol_data.gui.text_fit`):
+none runs past the window's edge.
 
 Play runs a haptic session (:func:`surrol_data.collect.haptic_source.collect_haptic`, the same recorder and
 provenance as the CLI) into ``<out>/<task>`` on a thread of its own, so the window never waits for the physics, the
@@ -52,7 +53,6 @@ HUD_SCALE, KEYS_SCALE = 0.045, 0.035   # text sizes (window units) of the HUD an
 HUD_PLATE_MARGIN = (0.4, 0.4, 0.25, 0.3)   # left, right, bottom, top, in the text's line heights
 EDGE_GAP = 0.02             # window units kept free between a text and the window's (or the view's) edge
 MIN_TEXT_SCALE = 0.75       # a text too long for its room is drawn down to this share of its size, then cut
-STATUS_MIN_ROOM = 0.75      # window units the status line gets at least, right of the buttons
 _IDLE_FRAME_S = 1 / 30
 _WHEEL_STEP = 0.08          # of the task list's height per wheel notch
 SESSION_EPISODES = 10_000   # a session records until exit unless told otherwise
@@ -213,27 +213,23 @@ class TrainingApp:
             item.bind(WHEEL_DOWN, lambda _event: self.scroll_tasks(1))
 
     def _build_controls(self) -> None:
-        """The controls under the view, laid out for a 16:9 window from the view's left edge; a narrower window
-        draws them smaller (the node they hang from is scaled), so that the buttons and the status line right of
-        them (at least ``STATUS_MIN_ROOM`` wide) stay inside it."""
+        """The controls under the view, from the view's left edge: the menus and the operator field, the buttons,
+        and under them the status line, which has the view's whole width. A window too narrow for the buttons
+        draws the controls smaller (the node they hang from is scaled) so that they stay inside it."""
         from direct.gui.DirectGui import DirectButton, DirectEntry, DirectLabel, DirectOptionMenu
         from panda3d.core import TextNode
 
         aspect = self.size[0] / self.size[1]
-        row1, row2 = 2 * CONTROLS_FRACTION - 0.09, 0.07   # above the window's bottom edge, unscaled
-        status_x = 1.8 if self.policy is not None else 1.45
-        room = aspect - EDGE_GAP - (-aspect + 2 * aspect * PANEL_FRACTION + 0.05)
+        row1, row2, row3 = 2 * CONTROLS_FRACTION - 0.09, 0.125, 0.035   # above the window's bottom edge
         controls = self.base.aspect2d.attach_new_node("controls")
         controls.set_pos(-aspect + 2 * aspect * PANEL_FRACTION + 0.05, 0, -1)
-        controls.set_scale(min(1.0, room / (status_x + STATUS_MIN_ROOM)))
         left = 0.0
         label = dict(scale=0.04, text_align=TextNode.A_left, text_fg=(0.85, 0.85, 0.85, 1), frameColor=(0, 0, 0, 0),
                      parent=controls)
         DirectLabel(text="device", pos=(left, 0, row1), **label)
         self.device_menu = DirectOptionMenu(items=list(DEVICES), initialitem=DEVICES.index(self.device),
                                             scale=0.045, pos=(left + 0.14, 0, row1), command=self._set_device,
-                                            parent=controls,
-                                            highlightColor=(0.6, 0.6, 0.65, 1))
+                                            parent=controls, highlightColor=(0.6, 0.6, 0.65, 1))
         DirectLabel(text="operator", pos=(left + 0.58, 0, row1), **label)
         self.operator_entry = DirectEntry(initialText=self.operator_id, scale=0.045, width=8,
                                           pos=(left + 0.76, 0, row1), command=self._set_operator, parent=controls,
@@ -264,10 +260,14 @@ class TrainingApp:
             take.bind(DGG.B1PRESS, lambda _event: self.keys.hold(TAKEOVER_KEY, True))
             take.bind(DGG.B1RELEASE, lambda _event: self.keys.hold(TAKEOVER_KEY, False))
             self.buttons["take over"] = take
-        self.status = DirectLabel(text="choose a task", pos=(status_x, 0, row2), **label)
+        self.status = DirectLabel(text="choose a task", pos=(left, 0, row3), **label)
         self._status_scale = 0.04
-        # The room right of the status line's start, in the controls' units.
-        self._status_room = (aspect - EDGE_GAP - controls.get_x()) / controls.get_sx() - status_x
+        # The widest row (the menus' or the buttons') sets how small the controls must be drawn to fit.
+        room = aspect - EDGE_GAP - controls.get_x()
+        widest = max(item.get_x() + item.get_sx() * item.getBounds()[1]
+                     for item in (self.device_menu, self.operator_entry, self.skill_menu, *self.buttons.values()))
+        controls.set_scale(min(1.0, room / widest))
+        self._status_room = room / controls.get_sx() - left   # in the controls' units
 
     def _build_hud(self) -> None:
         from direct.gui.OnscreenText import OnscreenText
@@ -300,7 +300,7 @@ class TrainingApp:
         text.setText(fitted)
 
     def set_status(self, message: str) -> None:
-        """Show ``message`` in the status line right of the buttons, fitted to the room left there."""
+        """Show ``message`` in the status line under the buttons, fitted to the view's width."""
         node = self.status.component("text0").textNode
         fitted, s = fit_text(message, node.calc_width, self._status_room, self._status_scale,
                              MIN_TEXT_SCALE * self._status_scale)
