@@ -68,12 +68,14 @@ def first_seed(out: str | Path, append: bool, seed: int | None, source: str) -> 
     if seed is not None:
         return int(seed)
     out = Path(out)
-    if not append or not (out / "meta" / "info.json").exists():
+    if not append or not (out / "meta").is_dir():
         return 0
     from surrol_data.datasets.guard import ensure_finished
     from surrol_data.datasets.reader import DatasetReader
 
-    ensure_finished(out)
+    ensure_finished(out)   # a recording killed before it created its dataset has no info.json until this repair
+    if not (out / "meta" / "info.json").exists():
+        return 0
     episodes = DatasetReader(out).episodes
     if "seed" not in episodes.columns or "source" not in episodes.columns:
         return 0

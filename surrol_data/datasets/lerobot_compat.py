@@ -127,6 +127,49 @@ def lerobot_dataset_class():
     return LeRobotDataset
 
 
+CREATE_STAGING = ".surrol_data_create"
+
+
+def create_dataset(root, **create_kwargs):
+    """``LeRobotDataset.create(root=root, **create_kwargs)`` in a folder that already exists.
+
+    The recorder creates its LeRobot dataset lazily, at its first checkpoint (lerobot's import, ~5 s, is not paid
+    before the first episode), and by then ``root`` holds the lock, the journal and the sidecar; lerobot's ``create``
+    refuses an existing folder. So the dataset is created in ``root/.surrol_data_create`` (``create`` writes nothing
+    but ``meta/info.json`` there), the ``info.json`` is moved into ``root/meta/`` (atomically) and the dataset object is
+    pointed at ``root``: the same object, and the same files, as ``create(root=root)`` in an empty folder. Raises
+    :class:`LerobotIncompatible`, with ``root`` untouched, when the installed lerobot's ``create`` writes more than
+    that file or keeps its folder in attributes other than the ones re-pointed here."""
+    import os
+    import shutil
+    from pathlib import Path
+
+    root = Path(root)
+    staging = root / CREATE_STAGING
+    if staging.exists():
+        shutil.rmtree(staging)   # left by a process killed while creating: it held nothing else
+    ds = lerobot_dataset_class().create(root=staging, **create_kwargs)
+    written = sorted(str(p.relative_to(staging)) for p in staging.rglob("*") if p.is_file())
+    pointers = ((ds, "root"), (ds, "_requested_root"), (getattr(ds, "meta", None), "root"),
+                (getattr(ds, "meta", None), "_requested_root"), (getattr(ds, "writer", None), "_root"))
+    if written != ["meta/info.json"] or any(getattr(obj, name, None) != staging for obj, name in pointers):
+        shutil.rmtree(staging, ignore_errors=True)
+        raise LerobotIncompatible(f"lerobot {lerobot_version()}: LeRobotDataset.create wrote {written} / keeps its "
+                                  "folder elsewhere than checked by lerobot_compat.create_dataset; record with "
+                                  f"lerobot {CHECKED_VERSIONS[-1]}")
+    (root / "meta").mkdir(parents=True, exist_ok=True)
+    os.replace(staging / "meta" / "info.json", root / "meta" / "info.json")
+    shutil.rmtree(staging)
+    for obj, name in pointers:
+        setattr(obj, name, root)
+    left = [f"{type(obj).__name__}.{k}" for obj in (ds, ds.meta, ds.writer) for k, v in vars(obj).items()
+            if isinstance(v, Path) and (v == staging or staging in v.parents)]
+    if left:
+        raise LerobotIncompatible(f"lerobot {lerobot_version()}: {', '.join(left)} still name the staging folder of "
+                                  "lerobot_compat.create_dataset")
+    return ds
+
+
 def install_fast_save() -> None:
     """Skip lerobot's per-row ``embed_images`` map for episodes without ``image`` features, build each episode's
     arrow table directly instead of through ``datasets.Dataset.from_dict`` (:class:`_FastDatasets`), compute the

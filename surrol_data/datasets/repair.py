@@ -42,8 +42,9 @@ from surrol_data.datasets.reader import (
     parquet_files,
     trajectory_from_table,
 )
-from surrol_data.datasets.schema import (CAMERA_VERSION, PROVENANCE_COLUMNS, PROVENANCE_PREFIX, SIDECAR_PATH,
-                                         camera_version_of, utc_now_iso)
+from surrol_data.datasets.lerobot_compat import CREATE_STAGING
+from surrol_data.datasets.schema import (CAMERA_VERSION, PENDING_DATASET, PROVENANCE_COLUMNS, PROVENANCE_PREFIX,
+                                         SIDECAR_PATH, camera_version_of, utc_now_iso)
 
 REPAIR_DIR = ".surrol_data_repair"
 TRACE_DIR = "meta/device_traces"  # = surrol_data.collect.devices.trace.TRACE_DIR (not imported: no device deps)
@@ -156,6 +157,7 @@ def repair(root: str | Path) -> RepairReport:
         raise DatasetError(f"{root} is being written right now (pid {holder or '?'}); repair it only once the "
                            "writer has finished or died")
     with DatasetLock(root):
+        _create_pending_dataset(root)
         report, salvage, info = _cut_back(root)
     if salvage:
         _replay(root, info, salvage, report)
@@ -164,6 +166,29 @@ def repair(root: str | Path) -> RepairReport:
         _mark_sessions_ended(root, report)
         write_dataset_card(root)
     return report
+
+
+def _create_pending_dataset(root: Path) -> None:
+    """Create the LeRobot dataset of a recording killed before it did (it opened lazily: its sidecar holds the
+    features, its journal every finished episode), as its recorder would have: then the repair goes on as for a
+    recording killed before its first checkpoint (replaying the journal into the new dataset)."""
+    from surrol_data.datasets.writer import VIDEO_BACKEND, _write_json_atomic
+
+    side = read_sidecar(root)
+    pending = side.get(PENDING_DATASET)
+    if pending is None:
+        return
+    if not (root / INFO_PATH).exists():
+        from surrol_data.datasets.hub_offline import hub_offline, usable_repo_id
+        from surrol_data.datasets.lerobot_compat import create_dataset
+
+        with hub_offline():
+            create_dataset(root, repo_id=usable_repo_id(side.get("repo_id"), root), fps=int(pending["fps"]),
+                           features=pending["features"], robot_type=pending.get("robot_type"), use_videos=True,
+                           video_backend=VIDEO_BACKEND, metadata_buffer_size=1)
+    shutil.rmtree(root / CREATE_STAGING, ignore_errors=True)   # a kill inside create_dataset's last steps
+    side.pop(PENDING_DATASET)
+    _write_json_atomic(root / SIDECAR_PATH, side)
 
 
 def _cut_back(root: Path):

@@ -67,6 +67,9 @@ CAMERA_VERSION = 2
 FPS = 5  # 1 / envs.units.CONTROL_PERIOD_S; LeRobot wants an int
 PROVENANCE_PREFIX = "provenance/"
 SIDECAR_PATH = "meta/surrol_data.json"
+# Sidecar key of a dataset whose recorder opened it lazily and has not created the LeRobot dataset yet: its features,
+# fps and robot type, from which repair() creates it (surrol_data.datasets.writer.DatasetWriter._open_lazily).
+PENDING_DATASET = "pending_dataset"
 
 # Ordered name -> python type. Every column has exactly one type and never holds None (use "", -1, nan),
 # because the episodes parquet schema is fixed by the first episode and pandas/pyarrow would otherwise

@@ -100,6 +100,7 @@ from surrol_data.datasets.schema import (
     POLICY_ACTION,
     PROVENANCE_COLUMNS,
     PROVENANCE_PREFIX,
+    PENDING_DATASET,
     PROVENANCE_SEAL,
     SCHEMA_VERSION,
     SIDECAR_PATH,
@@ -206,10 +207,12 @@ class DatasetWriter:
             raise FileExistsError(f"{self.root} already exists: add episodes to it with --append, "
                                   "or choose a new folder")
         if self._exists:
+            if (self.root / "meta").is_dir():
+                # A recording killed before it created its LeRobot dataset left no info.json: the repair builds it.
+                self._before_append()
             if not (self.root / INFO_PATH).exists():
                 raise DatasetError(f"{self.root} exists but is not a LeRobot dataset ({INFO_PATH} missing); "
                                    "choose a new folder or the root of an existing dataset")
-            self._before_append()
             existing = json.loads((self.root / INFO_PATH).read_text())["features"]
             if is_schema1(existing):
                 raise DatasetError(f"{self.root} was written with surrol_data schema 1: run `surrol-data upgrade "
@@ -244,6 +247,9 @@ class DatasetWriter:
             self._sealed = True
 
         self._ds = None
+        self._open = False
+        # Episodes recorded before the LeRobot dataset exists (see open()): (episode buffer, provenance columns).
+        self._unsaved: list[tuple[dict, dict]] = []
         self._git_commit = ""
         self._critical = 0
         self._pending_signal: int | None = None
@@ -271,12 +277,15 @@ class DatasetWriter:
 
     def open(self) -> None:
         """Create or resume the dataset and install the signal handlers (``with`` does this for you)."""
-        if self._ds is not None:
+        if self._open:
+            return
+        self._git_commit = git_commit()
+        if not self._exists and not self.dims["cameras"]:
+            self._open_lazily()
             return
         LeRobotDataset = _lerobot_dataset_class()
         if self.fast_save:
             lerobot_compat.install_fast_save()
-        self._git_commit = git_commit()
         if self._exists:
             self._lock.acquire()  # before touching anything: a second writer gets a clear error
             try:
@@ -297,25 +306,61 @@ class DatasetWriter:
             self._created = True
         self._prepare_writer()
         self._durable = self._ds.meta.total_episodes
+        self._start_session(checkpoint=True)
+
+    def _open_lazily(self) -> None:
+        """Open a new state-only dataset without lerobot: its import (~5 s, torch included) would come before the
+        first episode. The folder (the claim: a second creator fails here), the lock and the sidecar are made now,
+        the sidecar with the features (``pending_dataset``) so that :func:`surrol_data.datasets.repair.repair` can
+        create the dataset from them; episodes are journalled as always and kept in memory (a state-only episode
+        is small) until the first checkpoint creates the LeRobot dataset (:meth:`_create_dataset`) and saves them,
+        in order, as an eager open would have: the files are the same."""
+        self.root.mkdir(parents=True, exist_ok=False)
+        (self.root / "meta").mkdir()
+        self._lock.acquire()
+        self._exists = True
+        self._created = True
+        self._durable = 0
+        self._start_session(checkpoint=False)
+
+    def _start_session(self, checkpoint: bool) -> None:
+        self._open = True
         self._last_checkpoint_t = time.monotonic()
         self._session = {"started_at": utc_now_iso(), "command": self.command, "git_commit": self._git_commit,
                          "package_version": package_version(), "first_episode": self._durable, "episodes": 0}
-        self._write_sidecar(checkpoint=True)
+        self._write_sidecar(checkpoint=checkpoint)
         self._install_signal_handlers()
+
+    def _create_dataset(self) -> None:
+        """Create the LeRobot dataset of a lazy open and save the episodes recorded so far into it."""
+        if self.fast_save:
+            lerobot_compat.install_fast_save()
+        with hub_offline():
+            self._ds = lerobot_compat.create_dataset(self.root, repo_id=self.repo_id, fps=FPS, features=self.features,
+                                                     robot_type=self.robot_type, use_videos=True,
+                                                     video_backend=VIDEO_BACKEND, metadata_buffer_size=1)
+        self._prepare_writer()
+        while self._unsaved:
+            episode_data, columns = self._unsaved[0]
+            self._save(episode_data, columns)
+            self._unsaved.pop(0)
 
     def close(self) -> None:
         """Finalize (drop a partial episode), write the sidecar and dataset card, restore signal handlers."""
-        if self._ds is None:
+        if not self._open:
             return
         try:
             with self._hold_signals():
-                if self._ds.has_pending_frames():
-                    self._ds.clear_episode_buffer()
-                lerobot_compat.write_episode_totals(self._ds)
-                self._ds.finalize()
+                if self._ds is None and self._unsaved:
+                    self._create_dataset()
+                if self._ds is not None:
+                    if self._ds.has_pending_frames():
+                        self._ds.clear_episode_buffer()
+                    lerobot_compat.write_episode_totals(self._ds)
+                    self._ds.finalize()
                 self._ds = None
                 self._durable = self._total_episodes_on_disk()
-                journal.drop_below(self.root, sys.maxsize)
+                journal.drop_below(self.root, self._durable)   # an episode not in the files keeps its entry
                 if self._created and self._durable == 0:
                     # Nothing was recorded (e.g. the first episode failed): leave no folder to block a retry.
                     shutil.rmtree(self.root, ignore_errors=True)
@@ -325,6 +370,8 @@ class DatasetWriter:
                 write_dataset_card(self.root)
         finally:
             self._ds = None
+            self._open = False
+            self._unsaved.clear()
             self._lock.release()
             self._restore_signal_handlers()
 
@@ -387,7 +434,9 @@ class DatasetWriter:
     @property
     def num_episodes(self) -> int:
         """Episodes in the dataset, those recorded by this session included."""
-        return self._ds.meta.total_episodes if self._ds is not None else self._total_episodes_on_disk()
+        if self._ds is not None:
+            return self._ds.meta.total_episodes
+        return self._total_episodes_on_disk() + len(self._unsaved)
 
     @property
     def durable_episodes(self) -> int:
@@ -408,14 +457,14 @@ class DatasetWriter:
         and seed are required; task, env_id, command and git_commit default to the recorder's; metric
         columns left out are computed from ``traj``.
         """
-        if self._ds is None:
+        if not self._open:
             raise RuntimeError("DatasetRecorder is not open: use `with DatasetRecorder(...) as rec:` or call open()")
         frames = self._frame_arrays(traj)
         prov = normalize_provenance(provenance, traj, defaults={
             "task": self.task, "env_id": self.env_id, "command": self.command, "git_commit": self._git_commit})
         prov["content_hash"] = content_hash(frames, self.features)
         ds = self._ds
-        episode_index = ds.meta.total_episodes
+        episode_index = self.num_episodes
         episode_data = None
         if self.dims["cameras"]:
             # Camera frames go through add_frame, which stages the PNGs that lerobot's video encoder reads.
@@ -435,17 +484,17 @@ class DatasetWriter:
             # Durable first (one small file, atomically), then into lerobot's open files; a kill from here on
             # loses nothing: repair() replays the journal entry if the dataset files did not get the episode.
             journal.write_entry(self.root, episode_index, traj, prov)
-            self._pending_columns = {PROVENANCE_PREFIX + k: v for k, v in prov.items()}
+            columns = {PROVENANCE_PREFIX + k: v for k, v in prov.items()}
             if self._sealed:
-                self._pending_columns[PROVENANCE_SEAL] = provenance_seal(prov)
-            try:
-                with hub_offline(), quiet_video_encoder():
-                    ds.save_episode(episode_data=episode_data)
-            except BaseException:
-                journal.entry_path(self.root, episode_index).unlink(missing_ok=True)  # not recorded after all
-                raise
-            finally:
-                self._pending_columns = None
+                columns[PROVENANCE_SEAL] = provenance_seal(prov)
+            if ds is None:   # opened lazily: saved into the dataset when the first checkpoint creates it
+                self._unsaved.append((episode_data, columns))
+            else:
+                try:
+                    self._save(episode_data, columns)
+                except BaseException:
+                    journal.entry_path(self.root, episode_index).unlink(missing_ok=True)  # not recorded after all
+                    raise
             self._session["episodes"] = self._session.get("episodes", 0) + 1
             self._since_checkpoint += 1
             due_by_time = (self.checkpoint_interval_s is not None
@@ -454,11 +503,22 @@ class DatasetWriter:
                 self.checkpoint()
         return episode_index
 
+    def _save(self, episode_data: dict | None, columns: dict) -> None:
+        """Hand one episode to lerobot (``episode_data``: a state-only episode's buffer; None: the frames added)."""
+        self._pending_columns = columns
+        try:
+            with hub_offline(), quiet_video_encoder():
+                self._ds.save_episode(episode_data=episode_data)
+        finally:
+            self._pending_columns = None
+
     def checkpoint(self) -> None:
         """Close every open file (finalize) and resume, so a hard kill cannot lose what is recorded so far."""
-        if self._ds is None:
+        if not self._open:
             raise RuntimeError("DatasetRecorder is not open")
         with self._hold_signals():
+            if self._ds is None:
+                self._create_dataset()
             lerobot_compat.write_episode_totals(self._ds)
             if not lerobot_compat.close_files_and_continue(self._ds):
                 self._ds.finalize()
@@ -569,6 +629,11 @@ class DatasetWriter:
             sessions[-1] = dict(self._session)
         else:
             sessions.append(dict(self._session))
+        if self._ds is None and not (self.root / INFO_PATH).exists():
+            # Opened lazily, the LeRobot dataset not created yet: what repair() needs to create it.
+            side[PENDING_DATASET] = {"features": self.features, "fps": FPS, "robot_type": self.robot_type}
+        else:
+            side.pop(PENDING_DATASET, None)
         if checkpoint:
             # The last consistent info.json: repair() falls back to it if info.json itself was cut short.
             info_text = (self.root / INFO_PATH).read_text()
