@@ -316,7 +316,8 @@ class _Session:
             features.update(intervention_features(names.n_arms, names.action))
         self.recorder = DatasetRecorder(self.out, task=self.task, env_id=eid, task_description=env.unwrapped.TASK,
                                         features=features, append=append, command=command,
-                                        checkpoint_every=1, robot_type=dimension_names(env).robot_type)
+                                        checkpoint_every=1, robot_type=dimension_names(env).robot_type,
+                                        lazy=False)   # lerobot's import before the operator starts, not after
         self.result = HapticResult(root=self.out)
 
     def _key_tracker(self, names):

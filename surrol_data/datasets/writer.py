@@ -30,6 +30,13 @@ Durability — what survives how the process ends:
 * One writer at a time: the recorder holds a lock on the folder (:mod:`surrol_data.datasets.lock`); a
   second writer gets a clear error. A session that records no episode removes the folder it created.
 
+Start-up: a new state-only dataset is opened without lerobot (whose import, torch included, cost ~5 s before the
+first episode): the folder, the lock and the sidecar (with the features, ``pending_dataset``) are made at open, the
+episodes are journalled as always and held in memory, and the first checkpoint (or ``close``) creates the LeRobot
+dataset and saves them in order — the same calls as an eager open, so the same files. A SIGKILL before then leaves
+the journal and the sidecar; :func:`surrol_data.datasets.repair.repair` creates the dataset from the sidecar's
+features and replays the journal. Camera datasets, appends and ``lazy=False`` create or resume at open.
+
 Episode metadata rows, ``info.json`` and ``stats.json`` are written at each checkpoint, ``checkpoint_every``
 episodes at a time (:func:`lerobot_compat.attach_episode_columns` with ``batch``): so info.json is never ahead of
 meta/episodes, and ``meta/episodes`` holds one parquet row group per checkpoint instead of one (~60 KB of column
@@ -176,8 +183,12 @@ class DatasetWriter:
                  features: dict | None = None, repo_id: str | None = None, robot_type: str = ROBOT_TYPE,
                  append: bool = False, checkpoint_every: int = 10, checkpoint_interval_s: float | None = 60.0,
                  command: str | None = None, handle_signals: bool = True, fast_save: bool = True,
-                 camera_version: int = CAMERA_VERSION):
+                 camera_version: int = CAMERA_VERSION, lazy: bool = True):
         self.root = Path(root)
+        # A new state-only dataset is created at the first checkpoint, not at open (see _open_lazily); lazy=False
+        # creates it at open, e.g. for an interactive session, whose operator would rather wait before the first
+        # episode than after it.
+        self.lazy = lazy
         # The images' camera version (schema.CAMERA_VERSION): what this code renders, unless the episodes are
         # copied from a dataset recorded with another (merge, split, repair pass the source's).
         self.camera_version = camera_version
@@ -280,7 +291,7 @@ class DatasetWriter:
         if self._open:
             return
         self._git_commit = git_commit()
-        if not self._exists and not self.dims["cameras"]:
+        if self.lazy and not self._exists and not self.dims["cameras"]:
             self._open_lazily()
             return
         LeRobotDataset = _lerobot_dataset_class()
