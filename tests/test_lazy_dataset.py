@@ -24,6 +24,7 @@ from surrol_data.datasets.recorder import DatasetRecorder
 from surrol_data.datasets.repair import repair
 from surrol_data.datasets.schema import PENDING_DATASET, SIDECAR_PATH, frame_features
 from surrol_data.datasets.validate import validate_dataset
+from surrol_data.datasets.writer import MAX_UNSAVED
 from test_recorder import GOAL, OBS, RECORDER_ARGS, assert_same, make_traj, provenance
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -186,3 +187,29 @@ def test_checkpoints_from_the_first_episode_on(tmp_path, every):
     assert len(reader) == 3
     for ep in range(3):
         assert_same(reader.trajectory(ep), make_traj(ep, STEPS))
+
+
+def test_a_lazy_open_holds_at_most_max_unsaved_episodes_in_memory(tmp_path):
+    """With checkpoints far apart, the dataset is still created after MAX_UNSAVED episodes (memory stays bounded)."""
+    root = tmp_path / "ds"
+    with DatasetRecorder(root, features=frame_features(OBS, GOAL, 5, 1), checkpoint_every=1000,
+                         checkpoint_interval_s=None, **RECORDER_ARGS) as rec:
+        for i in range(MAX_UNSAVED - 1):
+            rec.record(make_traj(i, STEPS), provenance(i))
+        assert not (root / "meta" / "info.json").exists()
+        rec.record(make_traj(MAX_UNSAVED - 1, STEPS), provenance(MAX_UNSAVED - 1))
+        assert (root / "meta" / "info.json").exists() and rec.durable_episodes == 0
+        rec.record(make_traj(MAX_UNSAVED, STEPS), provenance(MAX_UNSAVED))
+    reader = DatasetReader(root)
+    assert len(reader) == MAX_UNSAVED + 1
+    for ep in range(MAX_UNSAVED + 1):
+        assert_same(reader.trajectory(ep), make_traj(ep, STEPS))
+
+
+def test_collect_append_after_the_kill_starts_after_its_seeds(tmp_path):
+    """`collect --append`'s first seed is read after the repair (the killed folder had no info.json to read it from)."""
+    from surrol_data.collect.script_source import first_seed
+
+    root = tmp_path / "killed"
+    _record_two_then_sigkill(root, tmp_path)   # episode 0: source script, seed 100
+    assert first_seed(root, append=True, seed=None, source="script") == 101

@@ -382,7 +382,7 @@ def _replay(root: Path, info: dict, salvage: list, report: RepairReport) -> None
                              task_description=description, append=bool(kept), repo_id=side.get("repo_id"),
                              robot_type=info.get("robot_type") or side.get("robot_type") or "dvrk_psm",
                              command=side.get("sessions", [{}])[-1].get("command", "surrol-data repair"),
-                             handle_signals=False, checkpoint_every=10_000, checkpoint_interval_s=None,
+                             handle_signals=False, checkpoint_every=10_000, checkpoint_interval_s=None, lazy=False,
                              camera_version=camera_version_of(side, features) or CAMERA_VERSION)
     entries = dict(journal.entries(root))
     with recorder:

@@ -126,6 +126,7 @@ from surrol_data.datasets.trajectory import DEVICE_FLAGS, EVENT_FLAGS, INTERVENT
 ROBOT_TYPE = "dvrk_psm"  # the default; collectors pass surrol_data.envs.names.dimension_names(env).robot_type
 VIDEO_BACKEND = "pyav"  # explicit: avoids torchcodec probing (and its 60-line warning without system ffmpeg)
 REPAIR_DIR = ".surrol_data_repair"
+MAX_UNSAVED = 10   # episodes a lazy open holds in memory at most before it creates the LeRobot dataset
 
 
 def _lerobot_dataset_class():
@@ -500,6 +501,8 @@ class DatasetWriter:
                 columns[PROVENANCE_SEAL] = provenance_seal(prov)
             if ds is None:   # opened lazily: saved into the dataset when the first checkpoint creates it
                 self._unsaved.append((episode_data, columns))
+                if len(self._unsaved) >= MAX_UNSAVED:
+                    self._create_dataset()   # memory stays bounded, whatever checkpoint_every is
             else:
                 try:
                     self._save(episode_data, columns)
