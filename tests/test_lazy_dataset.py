@@ -213,3 +213,35 @@ def test_collect_append_after_the_kill_starts_after_its_seeds(tmp_path):
     root = tmp_path / "killed"
     _record_two_then_sigkill(root, tmp_path)   # episode 0: source script, seed 100
     assert first_seed(root, append=True, seed=None, source="script") == 101
+
+
+def test_lerobot_imported_in_the_background_while_recording(tmp_path):
+    """`collect --workers N` imports lerobot in a thread after the first episode; the episodes recorded meanwhile and
+    the dataset the checkpoint creates are the same as without it."""
+    root, whole = tmp_path / "background", tmp_path / "whole"
+    code = textwrap.dedent(f"""
+        import sys, threading
+        sys.path.insert(0, {str(Path(__file__).parent)!r})
+        from test_recorder import make_traj, provenance, RECORDER_ARGS, OBS, GOAL
+        from surrol_data.datasets.recorder import DatasetRecorder
+        from surrol_data.datasets.schema import frame_features
+
+        with DatasetRecorder({str(root)!r}, features=frame_features(OBS, GOAL, 5, 1), command="recorded by the test",
+                             **RECORDER_ARGS) as rec:
+            for i in range(12):
+                rec.record(make_traj(i, {STEPS}), provenance(i))
+                if i == 0:
+                    assert "lerobot" not in sys.modules
+                    rec.import_lerobot_in_background()
+                    assert any(t.name == "surrol_data-import-lerobot" for t in threading.enumerate())
+        print("ok")
+    """)
+    result = subprocess.run([sys.executable, "-c", code], cwd=REPO_ROOT, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0 and result.stdout.strip() == "ok", result.stderr[-3000:]
+    with DatasetRecorder(whole, features=frame_features(OBS, GOAL, 5, 1), command="recorded by the test",
+                         **RECORDER_ARGS) as rec:
+        for i in range(12):
+            rec.record(make_traj(i, STEPS), provenance(i))
+    for rel in ("data/chunk-000/file-000.parquet", "data/chunk-000/file-001.parquet"):
+        assert pq.read_table(root / rel).equals(pq.read_table(whole / rel)), rel
+    assert len(DatasetReader(root)) == 12

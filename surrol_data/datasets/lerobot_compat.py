@@ -145,6 +145,7 @@ def create_dataset(root, **create_kwargs):
     from pathlib import Path
 
     root = Path(root)
+    wait_for_background_import()
     staging = root / CREATE_STAGING
     if staging.exists():
         shutil.rmtree(staging)   # left by a process killed while creating: it held nothing else
@@ -168,6 +169,36 @@ def create_dataset(root, **create_kwargs):
         raise LerobotIncompatible(f"lerobot {lerobot_version()}: {', '.join(left)} still name the staging folder of "
                                   "lerobot_compat.create_dataset")
     return ds
+
+
+_background_import = None   # the thread of import_in_background, once started
+
+
+def import_in_background() -> None:
+    """Start importing lerobot (:func:`lerobot_dataset_class`) in a daemon thread, once per process, for a caller whose
+    main thread is about to wait (on worker processes): the dataset created later then finds it imported. Not for a
+    main thread that computes meanwhile: PyBullet keeps the GIL while it steps (it never releases it), so the two
+    would only take turns. Whoever uses lerobot next calls :func:`wait_for_background_import` first; an import that
+    failed in the thread fails again, with its error, in the caller's."""
+    global _background_import
+    if _background_import is not None:
+        return
+    import threading
+
+    def run():
+        try:
+            lerobot_dataset_class()
+        except BaseException:  # noqa: BLE001 - the caller's own import raises it again, where it is handled
+            pass
+
+    _background_import = threading.Thread(target=run, name="surrol_data-import-lerobot", daemon=True)
+    _background_import.start()
+
+
+def wait_for_background_import() -> None:
+    """Join the thread :func:`import_in_background` started (if any), so that no two threads import lerobot at once."""
+    if _background_import is not None:
+        _background_import.join()
 
 
 def install_fast_save() -> None:

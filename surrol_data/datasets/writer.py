@@ -104,10 +104,10 @@ from surrol_data.datasets.schema import (
     INTERVENTION_ARMS,
     IS_INTERVENTION,
     NEXT_ENV_STATE,
+    PENDING_DATASET,
     POLICY_ACTION,
     PROVENANCE_COLUMNS,
     PROVENANCE_PREFIX,
-    PENDING_DATASET,
     PROVENANCE_SEAL,
     SCHEMA_VERSION,
     SIDECAR_PATH,
@@ -345,6 +345,7 @@ class DatasetWriter:
 
     def _create_dataset(self) -> None:
         """Create the LeRobot dataset of a lazy open and save the episodes recorded so far into it."""
+        lerobot_compat.wait_for_background_import()   # see import_lerobot_in_background
         if self.fast_save:
             lerobot_compat.install_fast_save()
         with hub_offline():
@@ -356,6 +357,13 @@ class DatasetWriter:
             episode_data, columns = self._unsaved[0]
             self._save(episode_data, columns)
             self._unsaved.pop(0)
+
+    def import_lerobot_in_background(self) -> None:
+        """For a caller whose main thread waits from now on (on worker processes): import lerobot meanwhile in a
+        thread, so that creating the dataset at the first checkpoint does not stall the recording
+        (:func:`lerobot_compat.import_in_background`). Nothing to do once the dataset exists."""
+        if self._open and self._ds is None:
+            lerobot_compat.import_in_background()
 
     def close(self) -> None:
         """Finalize (drop a partial episode), write the sidecar and dataset card, restore signal handlers."""
