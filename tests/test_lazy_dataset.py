@@ -19,6 +19,7 @@ import pytest
 
 from surrol_data.datasets import journal
 from surrol_data.datasets.guard import require_valid
+from surrol_data.datasets.lerobot_compat import CREATE_STAGING
 from surrol_data.datasets.reader import DatasetReader
 from surrol_data.datasets.recorder import DatasetRecorder
 from surrol_data.datasets.repair import repair
@@ -113,8 +114,12 @@ def test_a_command_repairs_it_automatically(tmp_path):
     """What every command runs first (require_valid) finds the killed recording and builds its dataset."""
     root = tmp_path / "killed"
     _record_two_then_sigkill(root, tmp_path)
+    # as if the kill had come while the dataset was being created: lerobot's half-written staging folder
+    (root / CREATE_STAGING / "meta").mkdir(parents=True)
+    (root / CREATE_STAGING / "meta" / "info.json").write_text('{"codebase_ver')
     target = require_valid(root, notify=lambda message: None)
     assert target == root and len(DatasetReader(root)) == 2
+    assert not (root / CREATE_STAGING).exists()
 
 
 def test_append_after_the_kill_continues_after_the_two_episodes(tmp_path):
