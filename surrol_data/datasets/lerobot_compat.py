@@ -1,6 +1,10 @@
 """Every lerobot internal surrol_data patches or relies on, in one place, checked against one lerobot version.
 
-The recorder needs four things lerobot 0.6 has no public API for (shared/docs/reference/lerobot.md §1–2):
+The recorder needs five things lerobot 0.6 has no public API for (shared/docs/reference/lerobot.md §1–2):
+
+* **creating a dataset in a folder that exists** (the recorder's lock, journal and sidecar are there before lerobot
+  is imported): :func:`create_dataset` creates it in a staging subfolder and points the dataset object at the
+  folder (``root`` / ``_requested_root`` of the dataset and its metadata, ``_root`` of its writer, each checked);
 
 * **per-episode provenance columns**: ``LeRobotDatasetMetadata.save_episode`` is wrapped so extra columns
   reach ``meta/episodes`` (:func:`attach_episode_columns`), and its ``_metadata_buffer_size`` is set to 1 so
