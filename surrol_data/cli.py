@@ -150,6 +150,22 @@ def _camera_size(camera: bool, camera_size: Optional[str]) -> Optional[tuple[int
     return w, h
 
 
+def _camera_renderer(renderer: Optional[str], size: Optional[tuple[int, int]]) -> str:
+    """``--renderer``: a renderer the envs know (checked here, before any env or dataset exists); only with the camera."""
+    from surrol_data.datasets.schema import DEFAULT_CAMERA_RENDERER
+
+    if renderer is None:
+        return DEFAULT_CAMERA_RENDERER
+    if size is None:
+        _fail("--renderer chooses what draws the endoscope video: add --camera (it records no video without)")
+    from surrol_data.envs.camera import camera_renderers
+
+    choices = camera_renderers()
+    if renderer not in choices:
+        _fail(f"--renderer must be one of {', '.join(choices)}; got {renderer!r}")
+    return renderer
+
+
 @app.command()
 def demo(out: Optional[Path] = typer.Option(None, help="Folder for everything the demo makes (default: a new temp folder)."),
          num_episodes: Optional[int] = typer.Option(None, min=1, help="Scripted demos to collect (default 20)."),
@@ -241,6 +257,9 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
                                                     "(observation.images.endoscope)."),
             camera_size: Optional[str] = typer.Option(None, help="Endoscope image WIDTHxHEIGHT with --camera "
                                                                  "(default 128x128)."),
+            renderer: Optional[str] = typer.Option(None, help="What draws the endoscope video with --camera: tiny "
+                                                   "(PyBullet's TinyRenderer, the default) or panda3d (spotlight, "
+                                                   "shadows; offscreen through EGL). Recorded in the dataset."),
             seed: Optional[int] = typer.Option(None, help="Seed of the first attempt; attempt i uses seed + i "
                                                "(default 0; with --append, one past the dataset's last seed)."),
             max_steps: Optional[int] = typer.Option(None, min=1, help="Episode horizon (default: the task's)."),
@@ -281,6 +300,8 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
     command = shlex.join(["surrol-data", *sys.argv[1:]])
     episodes = _count(num_episodes, old_episodes)
     size = _camera_size(camera, camera_size)
+    drawn_by = _camera_renderer(renderer, size)
+    from surrol_data.extras import MissingExtra   # --renderer panda3d without Panda3D installed
     if (policy is not None) != (source is Source.intervene):
         _fail("--policy names the policy of --source intervene (and only of it)" if policy is not None else
               "--source intervene needs --policy: a checkpoint (.pt), lerobot:DIR or 'oracle'")
@@ -289,7 +310,8 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
     if shards is not None or launcher is Launcher.slurm:   # it says these need --source script
         _collect_shards(source, task, episodes, out, shards, launcher, seed, append, command,
                         _slurm_options(partition, account, time_min, mem_gb, cpus, sbatch),
-                        dict(max_steps=max_steps, keep_failures=keep_failures, camera_size=size, speed=speed))
+                        dict(max_steps=max_steps, keep_failures=keep_failures, camera_size=size, speed=speed,
+                             camera_renderer=drawn_by))
         return
     if source is not Source.script:
         from surrol_data.collect.devices import DeviceError
@@ -303,9 +325,9 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
                                         sides=side or None, mapping=parse_mapping(mapping or []), trace=trace,
                                         seed=seed, max_steps=max_steps, keep_failures=keep_failures, append=append,
                                         gui=gui, rerun_live=rerun_live, command=command,
-                                        env_kwargs=camera_kwargs(size), profile=profile, policy=acting,
+                                        env_kwargs=camera_kwargs(size, drawn_by), profile=profile, policy=acting,
                                         policy_info=policy_info)
-            except (ValueError, FileExistsError, RuntimeError) as e:   # DeviceError is a RuntimeError
+            except (ValueError, FileExistsError, RuntimeError, MissingExtra) as e:   # DeviceError is a RuntimeError
                 if _disk_full(e):
                     raise
                 _fail(str(e) if not isinstance(e, DeviceError) else f"device: {e}")
@@ -321,8 +343,8 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
         try:
             result = collect_script(task, episodes, out, seed=seed, max_steps=max_steps, keep_failures=keep_failures,
                                     append=append, command=command, camera_size=size, speed=speed,
-                                    workers=workers)
-        except (ValueError, FileExistsError, RuntimeError) as e:
+                                    workers=workers, camera_renderer=drawn_by)
+        except (ValueError, FileExistsError, RuntimeError, MissingExtra) as e:
             if _disk_full(e):
                 raise
             _fail(str(e))

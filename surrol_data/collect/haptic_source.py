@@ -50,10 +50,10 @@ from surrol_data.collect.operator import SimulatedOperator
 from surrol_data.collect.operator.arm_supervisor import arm_supervisors
 from surrol_data.collect.operator.supervisor import Supervisor
 from surrol_data.collect.rollout import Policy, bind_policy, policy_action, start_episode
-from surrol_data.collect.script_source import features_for, first_seed, make_env
+from surrol_data.collect.script_source import features_for, first_seed, make_env, renderer_of
 from surrol_data.datasets.interventions import trajectory_interventions
 from surrol_data.datasets.recorder import DatasetRecorder
-from surrol_data.datasets.schema import CAMERA_VERSION, intervention_features
+from surrol_data.datasets.schema import CAMERA_VERSION, DEFAULT_CAMERA_RENDERER, intervention_features
 from surrol_data.datasets.trajectory import TrajectoryBuilder
 from surrol_data.envs import env_id as make_env_id
 from surrol_data.envs.names import dimension_names, is_ecm_action
@@ -160,7 +160,7 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
         return _Session(env, eid, episodes, out, device, names, operator_id, skill, sides, mapping, trace, seed,
                         horizon, keep_failures, append, gui, rerun_live, max_attempts or 3 * episodes, progress,
                         command, library, realtime, key_tracker, on_step, profile, policy, policy_info,
-                        timeout_needs_save).run()
+                        timeout_needs_save, renderer_of(env_kwargs)).run()
     finally:
         env.close()
 
@@ -248,7 +248,7 @@ class _Session:
     def __init__(self, env, eid, episodes, out, device, names, operator_id, skill, sides, mapping, trace, seed,
                  horizon, keep_failures, append, gui, rerun_live, max_attempts, progress, command, library,
                  realtime, key_tracker=None, on_step=None, profile=None, policy=None, policy_info=None,
-                 timeout_needs_save=False):
+                 timeout_needs_save=False, camera_renderer=DEFAULT_CAMERA_RENDERER):
         self.timeout_needs_save = timeout_needs_save
         self.env, self.eid, self.episodes, self.out = env, eid, episodes, Path(out)
         self.task = eid.split("/")[1].rsplit("-v", 1)[0]
@@ -317,6 +317,7 @@ class _Session:
         self.recorder = DatasetRecorder(self.out, task=self.task, env_id=eid, task_description=env.unwrapped.TASK,
                                         features=features, append=append, command=command,
                                         checkpoint_every=1, robot_type=dimension_names(env).robot_type,
+                                        camera_renderer=camera_renderer,
                                         lazy=False)   # lerobot's import before the operator starts, not after
         self.result = HapticResult(root=self.out)
 

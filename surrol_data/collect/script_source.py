@@ -13,7 +13,7 @@ from tqdm import tqdm
 
 from surrol_data.collect.rollout import ORACLE, rollout
 from surrol_data.datasets.recorder import DatasetRecorder
-from surrol_data.datasets.schema import event_features, frame_features
+from surrol_data.datasets.schema import DEFAULT_CAMERA_RENDERER, event_features, frame_features
 from surrol_data.datasets.trajectory import ENV_CAMERA
 from surrol_data.envs import env_id as make_env_id
 from surrol_data.envs.names import dimension_names, is_ecm_action
@@ -46,9 +46,17 @@ def features_for(env: gym.Env) -> dict:
     return features
 
 
-def camera_kwargs(camera_size: tuple[int, int] | None) -> dict:
-    """``gym.make`` arguments that add the endoscope image (``camera_size`` = (width, height)) to the observation."""
-    return {} if camera_size is None else {"camera": True, "camera_size": tuple(int(v) for v in camera_size)}
+def camera_kwargs(camera_size: tuple[int, int] | None, renderer: str = DEFAULT_CAMERA_RENDERER) -> dict:
+    """``gym.make`` arguments that add the endoscope image (``camera_size`` = (width, height)) drawn by ``renderer``
+    (``"tiny"`` or ``"panda3d"``, see :func:`surrol_data.envs.camera.make_camera`) to the observation."""
+    if camera_size is None:
+        return {}
+    return {"camera": True, "camera_size": tuple(int(v) for v in camera_size), "camera_renderer": renderer}
+
+
+def renderer_of(env_kwargs: dict | None) -> str:
+    """The renderer that ``gym.make(..., **env_kwargs)`` draws the endoscope with (what the dataset records)."""
+    return (env_kwargs or {}).get("camera_renderer", DEFAULT_CAMERA_RENDERER)
 
 
 def make_env(eid: str, env_kwargs: dict, **kwargs) -> gym.Env:
@@ -137,14 +145,16 @@ def collect_script(task: str, episodes: int, out: str | Path, seed: int | None =
                    keep_failures: bool = False, append: bool = False, max_attempts: int | None = None,
                    progress: bool = True, command: str | None = None,
                    camera_size: tuple[int, int] | None = None, speed: float = 1.0,
-                   seed_stride: int = 1, workers: int = 1) -> CollectResult:
+                   seed_stride: int = 1, workers: int = 1,
+                   camera_renderer: str = DEFAULT_CAMERA_RENDERER) -> CollectResult:
     """Record ``episodes`` oracle episodes of ``task`` into the LeRobot dataset at ``out``.
 
     Attempt ``i`` uses seed ``seed + i * seed_stride`` (``seed=None``: 0, or with ``append`` the seed after the
     dataset's last scripted one, see :func:`first_seed`; a stride of N with first seeds 0..N-1 gives N collections
     disjoint seeds, :mod:`surrol_data.collect.shards`); an attempt is kept when it succeeded at some step (the original
     generator's rule), or always with ``keep_failures``. Gives up after ``max_attempts`` (default 3×).
-    ``camera_size`` = (width, height) also records the endoscope view as video.
+    ``camera_size`` = (width, height) also records the endoscope view as video, drawn by ``camera_renderer``
+    (recorded in the sidecar; every worker draws with it too).
     ``speed`` < 1 runs the oracle at that fraction of its pace (:class:`PacedOracle`; recorded in provenance).
     ``workers`` > 1 rolls the episodes out in that many processes while this one records them, in the same seed
     order: the same dataset as ``workers=1`` (:func:`surrol_data.collect.parallel_rollouts.ordered_rollouts`).
@@ -160,7 +170,8 @@ def collect_script(task: str, episodes: int, out: str | Path, seed: int | None =
 
     eid = make_env_id(task)
     kwargs = {"max_episode_steps": max_steps} if max_steps else {}
-    env = make_env(eid, camera_kwargs(camera_size), **kwargs)
+    env_kwargs = camera_kwargs(camera_size, camera_renderer)
+    env = make_env(eid, env_kwargs, **kwargs)
     task_name = eid.split("/")[1].rsplit("-v", 1)[0]
     result = CollectResult(root=Path(out))
     max_attempts = max_attempts or 3 * episodes
@@ -168,13 +179,13 @@ def collect_script(task: str, episodes: int, out: str | Path, seed: int | None =
     settings = json.dumps({"oracle_speed": float(speed)}) if speed != 1.0 else "{}"
     recorder = DatasetRecorder(out, task=task_name, env_id=eid, task_description=env.unwrapped.TASK,
                                features=features_for(env), append=append, command=command,
-                               robot_type=dimension_names(env).robot_type)
+                               robot_type=dimension_names(env).robot_type, camera_renderer=renderer_of(env_kwargs))
     bar = tqdm(total=episodes, desc=f"collect {task_name} (script)", unit="ep", disable=not progress)
     seeds = (seed + i * seed_stride for i in range(max_attempts))
     if workers > 1:
         from surrol_data.collect.parallel_rollouts import ordered_rollouts
 
-        stream = ordered_rollouts(_start_worker, (eid, camera_kwargs(camera_size), kwargs, speed), _roll_in_worker,
+        stream = ordered_rollouts(_start_worker, (eid, env_kwargs, kwargs, speed), _roll_in_worker,
                                   seeds, workers)
     else:
         stream = _rollouts_here(env, policy, seeds)

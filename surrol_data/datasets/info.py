@@ -15,7 +15,7 @@ import numpy as np
 
 from surrol_data.datasets.interventions import episode_interventions, operator_interventions
 from surrol_data.datasets.reader import DatasetReader
-from surrol_data.datasets.schema import SIDECAR_PATH, camera_version_of
+from surrol_data.datasets.schema import SIDECAR_PATH, camera_renderer_of, camera_version_of
 
 GROUP_BY = ("source", "device", "skill", "operator_id")
 
@@ -195,6 +195,7 @@ def render_info(root: str | Path, label: str | Path | None = None, facts: dict |
         ("episodes", str(s["episodes"])),
         ("frames", f"{s['frames']} ({s['duration_s']:.1f} s at {s['fps']} fps)"),
         *((("camera version", str(v)),) if (v := camera_version_of(side, s["features"])) is not None else ()),
+        *((("camera renderer", r),) if (r := camera_renderer_of(side, s["features"])) is not None else ()),
     ):
         totals.add_row(label, value)
     if s["has_provenance"]:

@@ -33,7 +33,8 @@ from tqdm import tqdm
 
 from surrol_data.datasets.info import read_sidecar
 from surrol_data.datasets.reader import DatasetError, DatasetReader
-from surrol_data.datasets.schema import CAMERA_VERSION, PROVENANCE_COLUMNS, SIDECAR_PATH, camera_version_of
+from surrol_data.datasets.schema import (CAMERA_VERSION, DEFAULT_CAMERA_RENDERER, PROVENANCE_COLUMNS, SIDECAR_PATH,
+                                         camera_renderer_of, camera_version_of)
 
 _LEROBOT_DEFAULT_FEATURES = ("timestamp", "frame_index", "episode_index", "index", "task_index")
 
@@ -96,8 +97,14 @@ def _check_compatible(readers: list[DatasetReader]) -> dict:
             raise DatasetError(f"cannot combine {first.root} (camera version {ours_v}) with {other.root} (camera "
                                f"version {theirs_v}): their endoscope images are turned and framed differently "
                                "(see surrol_data.datasets.schema.CAMERA_VERSION)")
+        ours_r = camera_renderer_of(side, first.info["features"])
+        theirs_r = camera_renderer_of(other_side, other.info["features"])
+        if ours_r != theirs_r:
+            raise DatasetError(f"cannot combine {first.root} (drawn by the {ours_r!r} renderer) with {other.root} "
+                               f"(drawn by {theirs_r!r}): their endoscope images are not the same observation")
     return {"features": features, "task": side["task"], "env_id": side["env_id"],
             "camera_version": camera_version_of(side, first.info["features"]) or CAMERA_VERSION,
+            "camera_renderer": camera_renderer_of(side, first.info["features"]) or DEFAULT_CAMERA_RENDERER,
             "task_description": _task_description(first.root, side),
             "robot_type": first.info.get("robot_type") or "dvrk_psm"}
 
@@ -157,7 +164,8 @@ def copy_episodes(selection: list[tuple[str | Path, list[int]]], out: str | Path
     provenance_of = []
     recorder = DatasetRecorder(out, features=shared["features"], task=shared["task"], env_id=shared["env_id"],
                                task_description=shared["task_description"], robot_type=shared["robot_type"],
-                               command=command, checkpoint_every=50, camera_version=shared["camera_version"])
+                               command=command, checkpoint_every=50, camera_version=shared["camera_version"],
+                               camera_renderer=shared["camera_renderer"])
     bar = tqdm(total=total, desc=f"{operation} -> {out.name}", unit="ep", disable=not progress)
     try:
         with recorder:

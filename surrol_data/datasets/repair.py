@@ -43,8 +43,9 @@ from surrol_data.datasets.reader import (
     trajectory_from_table,
 )
 from surrol_data.datasets.lerobot_compat import CREATE_STAGING
-from surrol_data.datasets.schema import (CAMERA_VERSION, PENDING_DATASET, PROVENANCE_COLUMNS, PROVENANCE_PREFIX,
-                                         SIDECAR_PATH, camera_version_of, utc_now_iso)
+from surrol_data.datasets.schema import (CAMERA_VERSION, DEFAULT_CAMERA_RENDERER, PENDING_DATASET, PROVENANCE_COLUMNS,
+                                         PROVENANCE_PREFIX, SIDECAR_PATH, camera_renderer_of, camera_version_of,
+                                         utc_now_iso)
 
 REPAIR_DIR = ".surrol_data_repair"
 TRACE_DIR = "meta/device_traces"  # = surrol_data.collect.devices.trace.TRACE_DIR (not imported: no device deps)
@@ -383,7 +384,8 @@ def _replay(root: Path, info: dict, salvage: list, report: RepairReport) -> None
                              robot_type=info.get("robot_type") or side.get("robot_type") or "dvrk_psm",
                              command=side.get("sessions", [{}])[-1].get("command", "surrol-data repair"),
                              handle_signals=False, checkpoint_every=10_000, checkpoint_interval_s=None, lazy=False,
-                             camera_version=camera_version_of(side, features) or CAMERA_VERSION)
+                             camera_version=camera_version_of(side, features) or CAMERA_VERSION,
+                             camera_renderer=camera_renderer_of(side, features) or DEFAULT_CAMERA_RENDERER)
     entries = dict(journal.entries(root))
     with recorder:
         for ep, (traj, provenance) in salvage:

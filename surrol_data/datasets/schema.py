@@ -64,6 +64,11 @@ SCHEMA_VERSION = 2
 #      workspace (surrol_data.envs.ecm.PSM_SCENE_JOINTS).
 # Images of two versions are not the same observation: appending and merging across versions are refused.
 CAMERA_VERSION = 2
+# Which renderer drew a camera dataset's images (``collect --renderer``; the envs' ``camera_renderer``), recorded in
+# the sidecar as ``camera_renderer``: TinyRenderer's flat light and Panda3D's spotlit, shadowed view are not the same
+# observation, so appending and merging across renderers are refused too. A camera dataset without the key was
+# drawn by TinyRenderer, the envs' default and the only renderer `collect` had before the key existed.
+DEFAULT_CAMERA_RENDERER = "tiny"
 FPS = 5  # 1 / envs.units.CONTROL_PERIOD_S; LeRobot wants an int
 PROVENANCE_PREFIX = "provenance/"
 SIDECAR_PATH = "meta/surrol_data.json"
@@ -220,6 +225,14 @@ def camera_version_of(sidecar: dict, features: dict) -> int | None:
     if not any(k.startswith("observation.images.") for k in features):
         return None
     return int(sidecar.get("camera_version", 1))
+
+
+def camera_renderer_of(sidecar: dict, features: dict) -> str | None:
+    """The renderer that drew a dataset's images (:data:`DEFAULT_CAMERA_RENDERER` if it records none; None: it has
+    no cameras)."""
+    if not any(k.startswith("observation.images.") for k in features):
+        return None
+    return str(sidecar.get("camera_renderer", DEFAULT_CAMERA_RENDERER))
 
 
 def is_schema1(features: dict) -> bool:

@@ -99,6 +99,7 @@ from surrol_data.datasets.reader import (
 )
 from surrol_data.datasets.schema import (
     CAMERA_VERSION,
+    DEFAULT_CAMERA_RENDERER,
     ENV_STATE,
     FPS,
     INTERVENTION_ARMS,
@@ -112,6 +113,7 @@ from surrol_data.datasets.schema import (
     SCHEMA_VERSION,
     SIDECAR_PATH,
     content_hash,
+    camera_renderer_of,
     camera_version_of,
     dims_from_features,
     is_schema1,
@@ -184,15 +186,18 @@ class DatasetWriter:
                  features: dict | None = None, repo_id: str | None = None, robot_type: str = ROBOT_TYPE,
                  append: bool = False, checkpoint_every: int = 10, checkpoint_interval_s: float | None = 60.0,
                  command: str | None = None, handle_signals: bool = True, fast_save: bool = True,
-                 camera_version: int = CAMERA_VERSION, lazy: bool = True):
+                 camera_version: int = CAMERA_VERSION, camera_renderer: str = DEFAULT_CAMERA_RENDERER,
+                 lazy: bool = True):
         self.root = Path(root)
         # A new state-only dataset is created at the first checkpoint, not at open (see _open_lazily); lazy=False
         # creates it at open, e.g. for an interactive session, whose operator would rather wait before the first
         # episode than after it.
         self.lazy = lazy
         # The images' camera version (schema.CAMERA_VERSION): what this code renders, unless the episodes are
-        # copied from a dataset recorded with another (merge, split, repair pass the source's).
+        # copied from a dataset recorded with another (merge, split, repair pass the source's). Likewise the
+        # renderer that drew them (the collectors pass the env's camera_renderer, the copies the source's).
         self.camera_version = camera_version
+        self.camera_renderer = camera_renderer
         self.repo_id = usable_repo_id(repo_id, self.root)  # lerobot tries the Hub for an id it refuses
         self.task, self.env_id, self.task_description = task, env_id, task_description
         self.robot_type = robot_type
@@ -246,6 +251,11 @@ class DatasetWriter:
                                  f"new episodes' of camera version {camera_version} (the endoscope image was turned "
                                  "and reframed; see surrol_data.datasets.schema.CAMERA_VERSION); record into a new "
                                  "dataset")
+            renderer = camera_renderer_of(sidecar, existing)
+            if renderer not in (None, camera_renderer):
+                raise ValueError(f"cannot append to {self.root}: its endoscope images were drawn by the {renderer!r} "
+                                 f"renderer, the new episodes' by {camera_renderer!r}; record with --renderer "
+                                 f"{renderer}, or into a new dataset")
             features = {k: v for k, v in existing.items() if k not in _LEROBOT_DEFAULT_FEATURES}
             # Episodes of one dataset are sealed all or none (one episodes-table schema): a dataset recorded
             # before seals existed takes new episodes unsealed (`surrol-data filter` makes a sealed copy).
@@ -643,6 +653,7 @@ class DatasetWriter:
         })
         if self.dims["cameras"]:
             side["camera_version"] = self.camera_version
+            side["camera_renderer"] = self.camera_renderer
         side.setdefault("created_at", side["updated_at"])
         if self._sealed:
             side["seals"] = 1  # every episode carries seal/* columns (see schema.provenance_seal)
