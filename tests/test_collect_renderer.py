@@ -45,7 +45,7 @@ def _ok(args: list[str]) -> str:
 
 
 def _collect(out: Path, *extra: str, episodes: int = 2, source: str = "script") -> Path:
-    device = ["--device", "operator", "--skill", "expert", "--operator-id", "e1"] if source == "haptic" else []
+    device = ["--device", "operator", "--skill", "expert", "--operator-id", "e1"] if source != "script" else []
     _ok(["collect", "--source", source, *device, "--task", TASK, "--num-episodes", str(episodes), "--seed", "0",
          "--max-steps", str(STEPS), "--keep-failures", "--camera", "--camera-size", f"{W}x{H}", *extra,
          "--out", str(out)])
@@ -120,8 +120,10 @@ def test_parallel_collection_draws_with_the_chosen_renderer(collected, tmp_path,
 
 
 @needs_gl
-def test_haptic_collection_records_the_renderer(tmp_path):
-    out = _collect(tmp_path / "haptic", "--renderer", "panda3d", source="haptic", episodes=1)
+@pytest.mark.parametrize("source", ["haptic", "intervene"])
+def test_operator_collection_records_the_renderer(tmp_path, source):
+    policy = ["--policy", "oracle"] if source == "intervene" else []
+    out = _collect(tmp_path / source, "--renderer", "panda3d", *policy, source=source, episodes=1)
     assert _renderer(out) == "panda3d"
     assert np.abs(_first_frame(out) - _direct("panda3d")).mean() < DECODED_TOLERANCE
 
