@@ -151,7 +151,7 @@ def _camera_size(camera: bool, camera_size: Optional[str]) -> Optional[tuple[int
 
 
 def _camera_renderer(renderer: Optional[str], size: Optional[tuple[int, int]]) -> str:
-    """``--renderer``: a renderer the envs know (checked here, before any env or dataset exists); only with the camera."""
+    """``--renderer``: a renderer the envs know (checked before any env or dataset exists); only with the camera."""
     from surrol_data.datasets.schema import DEFAULT_CAMERA_RENDERER
 
     if renderer is None:

@@ -1,9 +1,9 @@
 """``collect --camera --renderer tiny|panda3d``: the chosen renderer draws every collecting env's endoscope (one
-process, ``--workers``, ``--shards``, the haptic sources) and the dataset records it; appending or merging across
-renderers is refused like across camera versions.
+process, ``--workers``, ``--shards``, haptic and intervention sessions) and the dataset records it; appending or
+merging across renderers is refused like across camera versions.
 
-Real PyBullet, lerobot and Panda3D offscreen; the Panda3D tests are skipped (with the Debian packages to install) where Panda3D cannot
-open an offscreen OpenGL buffer.
+Real PyBullet, lerobot and Panda3D offscreen; the Panda3D tests are skipped (with the Debian packages to install)
+where Panda3D cannot open an offscreen OpenGL buffer.
 """
 
 from __future__ import annotations
