@@ -179,7 +179,7 @@ def collect_script(task: str, episodes: int, out: str | Path, seed: int | None =
     settings = json.dumps({"oracle_speed": float(speed)}) if speed != 1.0 else "{}"
     recorder = DatasetRecorder(out, task=task_name, env_id=eid, task_description=env.unwrapped.TASK,
                                features=features_for(env), append=append, command=command,
-                               robot_type=dimension_names(env).robot_type, camera_renderer=renderer_of(env_kwargs))
+                               robot_type=dimension_names(env).robot_type, camera_renderer=camera_renderer)
     bar = tqdm(total=episodes, desc=f"collect {task_name} (script)", unit="ep", disable=not progress)
     seeds = (seed + i * seed_stride for i in range(max_attempts))
     if workers > 1:
