@@ -22,6 +22,8 @@ from pathlib import Path
 
 import pytest
 
+from surrol_data.render.display import unavailable_reason as panda3d_unavailable
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
 CAP = {"collect": 20, "eval": 5}  # --num-episodes at most (20 keeps `split --valid-fraction 0.1` meaningful)
 
@@ -73,6 +75,8 @@ def adapt(command: str, home: Path) -> list[str] | None:
     if "hydra/launcher=slurm" in args or "slurm" in args:   # tests/test_slurm.py runs these on a local SLURM
         return None
     if any(a.startswith("lerobot:") for a in args):   # needs lerobot-train's output first: tests/test_lerobot_train.py
+        return None
+    if "panda3d" in args and panda3d_unavailable() is not None:   # no EGL here: tests/test_render_panda3d.py skips too
         return None
     if args[1] == "train" and "--cfg" not in args:
         args.append("experiment=smoke")
