@@ -85,7 +85,9 @@ def LeRobotDataset():
 def written(tmp_path_factory, LeRobotDataset):
     root = tmp_path_factory.mktemp("rec") / "needle"
     trajs = [make_traj(i, 8 + i) for i in range(5)]
-    with DatasetRecorder(root, features=frame_features(OBS, GOAL, 5, 1), checkpoint_every=2, **RECORDER_ARGS) as rec:
+    # one file per checkpoint (not consolidated): the layout a killed recording leaves, which repair works on
+    with DatasetRecorder(root, features=frame_features(OBS, GOAL, 5, 1), checkpoint_every=2, consolidate=False,
+                         **RECORDER_ARGS) as rec:
         indices = [rec.record(t, provenance(i)) for i, t in enumerate(trajs)]
     return root, trajs, indices
 

@@ -16,7 +16,7 @@ import pytest
 
 from test_dataset_tools import make_dataset
 
-from surrol_data.datasets.repair import _write_one_row_group_per_episode
+from surrol_data.datasets.consolidate import write_one_row_group_per_episode as _write_one_row_group_per_episode
 from surrol_data.datasets.validate import validate_dataset
 
 REPO_ROOT = Path(__file__).resolve().parents[1]

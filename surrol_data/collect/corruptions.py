@@ -58,7 +58,8 @@ def base_dataset(root: str | Path, camera: bool = True) -> Path:
     root = Path(root)
     features = frame_features(OBS, GOAL, 5, 1, cameras={"front": CAMERA} if camera else None)
     with DatasetRecorder(root, features=features, task="NeedleReach", env_id="SurRoL/NeedleReach-v0",
-                         task_description="reach the needle", checkpoint_every=2, handle_signals=False) as rec:
+                         task_description="reach the needle", checkpoint_every=2, handle_signals=False,
+                         consolidate=False) as rec:   # several files, as a killed or appended recording leaves
         for i in range(EPISODES):
             traj = _trajectory(i, STEPS + i, camera)
             index = rec.record(traj, {"source": "haptic", "device": "touch", "skill": "expert", "seed": i,

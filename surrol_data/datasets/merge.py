@@ -161,12 +161,25 @@ def copy_episodes(selection: list[tuple[str | Path, list[int]]], out: str | Path
         raise DatasetError(f"{operation}: no episode selected" + (f" by --where {where!r}" if where else "")
                            + "; nothing to write")
     command = command if command is not None else shlex.join(sys.argv)
+    derived_from = {"operation": operation, "where": where or "",
+                    "duplicates_dropped": [{"episode": b, "copy_of": a} for a, b in duplicates],
+                    "sources": [{"root": str(r.root.resolve()), "episodes": len(eps)}
+                                for r, (_, eps) in zip(readers, selection, strict=True)]}
+    bar = tqdm(total=total, desc=f"{operation} -> {out.name}", unit="ep", disable=not progress)
+    from surrol_data.datasets import bulk_copy
+
+    if bulk_copy.applies(readers):   # state-only: the stored rows are copied, not recorded again
+        try:
+            bulk_copy.copy_state_episodes(readers, [eps for _, eps in selection], out, shared=shared,
+                                          command=command, derived_from=derived_from, progress=bar.update)
+        finally:
+            bar.close()
+        return out
     provenance_of = []
     recorder = DatasetRecorder(out, features=shared["features"], task=shared["task"], env_id=shared["env_id"],
                                task_description=shared["task_description"], robot_type=shared["robot_type"],
                                command=command, checkpoint_every=50, camera_version=shared["camera_version"],
                                camera_renderer=shared["camera_renderer"])
-    bar = tqdm(total=total, desc=f"{operation} -> {out.name}", unit="ep", disable=not progress)
     try:
         with recorder:
             for reader, (_, episodes) in zip(readers, selection, strict=True):
@@ -180,11 +193,7 @@ def copy_episodes(selection: list[tuple[str | Path, list[int]]], out: str | Path
     finally:
         bar.close()
     side = read_sidecar(out)
-    side["derived_from"] = {"operation": operation, "where": where or "",
-                            "duplicates_dropped": [{"episode": b, "copy_of": a} for a, b in duplicates],
-                            "sources": [{"root": str(r.root.resolve()), "episodes": len(eps)}
-                                        for r, (_, eps) in zip(readers, selection, strict=True)],
-                            "episodes": provenance_of}
+    side["derived_from"] = {**derived_from, "episodes": provenance_of}
     _write_json_atomic(out / SIDECAR_PATH, side)
     write_dataset_card(out)
     return out

@@ -231,7 +231,7 @@ class DatasetReader:
             self._meta = pa.concat_tables(tables, promote_options="default").sort_by("episode_index")
         self.episodes: pd.DataFrame = self._episodes_frame()
         self._row_of = {int(ep): i for i, ep in enumerate(self.episodes["episode_index"])}
-        self._row_groups: dict[Path, list[tuple[int, int, int]]] = {}
+        self._row_groups: dict[Path, np.ndarray] = {}   # (min, max) episode of each row group
 
     # ---------------------------------------------------------------- metadata
 
@@ -316,6 +316,11 @@ class DatasetReader:
 
     def _groups_with(self, path: Path, ep: int) -> list[int]:
         """Row groups of ``path`` that may hold episode ``ep`` (from the parquet statistics)."""
+        return self._groups_holding(path, [ep])
+
+    def _groups_holding(self, path: Path, episodes: list[int]) -> list[int]:
+        """Row groups of ``path`` that may hold any of ``episodes`` (from the parquet statistics; empty when the
+        file has none: the caller reads the whole file)."""
         if path not in self._row_groups:
             md = pq.read_metadata(path)
             col = md.schema.names.index("episode_index")
@@ -325,9 +330,17 @@ class DatasetReader:
                 if stats is None or not stats.has_min_max:
                     spans = []  # no statistics: the caller reads the whole file
                     break
-                spans.append((i, int(stats.min), int(stats.max)))
-            self._row_groups[path] = spans
-        return [i for i, lo, hi in self._row_groups[path] if lo <= ep <= hi]
+                spans.append((int(stats.min), int(stats.max)))
+            self._row_groups[path] = np.asarray(spans, np.int64).reshape(-1, 2)
+        spans = self._row_groups[path]
+        wanted = np.unique(np.asarray(episodes, np.int64))
+        if not len(spans) or not len(wanted):
+            return []
+        # the first wanted episode at or after each group's min: the group is needed if it is within the group
+        at = np.searchsorted(wanted, spans[:, 0])
+        inside = at < len(wanted)
+        inside[inside] = wanted[at[inside]] <= spans[inside, 1]
+        return np.flatnonzero(inside).tolist()
 
     def _episode_table(self, ep: int, columns: list[str]) -> pa.Table:
         path = self._data_path(self._episode_row(ep))
@@ -350,10 +363,15 @@ class DatasetReader:
         cols = list(dict.fromkeys([*columns, "episode_index", "index"]))
         tables = []
         for path in paths:
-            table = pq.read_table(path, columns=cols)
-            if wanted is not None:
-                table = table.filter(pc.is_in(table.column("episode_index"), pa.array(wanted, pa.int64())))
-            tables.append(table)
+            if wanted is None:
+                tables.append(pq.read_table(path, columns=cols))
+                continue
+            # only the row groups (lerobot writes one per episode) that hold wanted episodes: a consolidated file
+            # holds thousands of episodes, most of them not asked for
+            groups = self._groups_holding(path, wanted)
+            pf = pq.ParquetFile(path)
+            table = pf.read_row_groups(groups, columns=cols) if groups else pf.read(columns=cols)
+            tables.append(table.filter(pc.is_in(table.column("episode_index"), pa.array(wanted, pa.int64()))))
         if not tables:  # no episode asked for, or an empty dataset
             all_files = parquet_files(self.root, DATA_DIR)
             if not all_files:

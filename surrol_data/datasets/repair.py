@@ -32,6 +32,7 @@ import pyarrow.parquet as pq
 
 from surrol_data.datasets import journal
 from surrol_data.datasets.card import write_dataset_card
+from surrol_data.datasets.consolidate import finish_interrupted, interrupted, write_one_row_group_per_episode
 from surrol_data.datasets.info import read_sidecar
 from surrol_data.datasets.lock import DatasetLock, writer_pid
 from surrol_data.datasets.reader import (
@@ -60,6 +61,7 @@ class RepairReport:
     moved: list[str] = field(default_factory=list)
     backup_dir: str | None = None
     frames: int = 0
+    consolidation: str = ""              # what was done about an interrupted consolidation ("" if none was)
 
     @property
     def episodes_dropped(self) -> int:
@@ -69,9 +71,11 @@ class RepairReport:
         return getattr(self, key)
 
     def lines(self) -> list[str]:
+        first = [self.consolidation] if self.consolidation else []
         if self.backup_dir is None:
-            return [f"nothing to repair: {self.episodes_kept} episodes, {self.frames} frames, every file readable"]
-        out = [f"kept {self.episodes_kept} episodes ({self.frames} frames)"
+            return first + [f"{'then nothing else' if first else 'nothing'} to repair: {self.episodes_kept} "
+                            f"episodes, {self.frames} frames, every file readable"]
+        out = first + [f"kept {self.episodes_kept} episodes ({self.frames} frames)"
                + (f", {self.episodes_salvaged} of them salvaged from later files or the journal"
                   if self.episodes_salvaged else "")]
         out += [f"dropped episode {ep}: {why}" for ep, why in self.dropped]
@@ -145,6 +149,8 @@ def killed_recording(root: str | Path) -> list[str]:
     sessions = read_sidecar(root).get("sessions") or []
     if sessions and "ended_at" not in sessions[-1]:
         signs.append("its last recording session never ended")
+    if interrupted(root):
+        signs.append("the consolidation of its files was interrupted")
     return signs
 
 
@@ -158,8 +164,10 @@ def repair(root: str | Path) -> RepairReport:
         raise DatasetError(f"{root} is being written right now (pid {holder or '?'}); repair it only once the "
                            "writer has finished or died")
     with DatasetLock(root):
+        finished = finish_interrupted(root)   # first: until it is done, a file may be out of its place
         _create_pending_dataset(root)
         report, salvage, info = _cut_back(root)
+    report.consolidation = finished
     if salvage:
         _replay(root, info, salvage, report)
     sessions = read_sidecar(root).get("sessions") or []
@@ -306,7 +314,7 @@ def _cut_back(root: Path):
     report.backup_dir = str(backup)
 
     # Cut every surviving file back to episodes 0..kept-1.
-    for sub, write in ((EPISODES_DIR, pq.write_table), (DATA_DIR, _write_one_row_group_per_episode)):
+    for sub, write in ((EPISODES_DIR, pq.write_table), (DATA_DIR, write_one_row_group_per_episode)):
         for path in parquet_files(root, sub):
             table = pq.read_table(path)
             keep = pc.less(table.column("episode_index"), kept)
@@ -437,15 +445,6 @@ def _mark_sessions_ended(root: Path, report: RepairReport) -> None:
         "dropped": [{"episode": ep, "why": why} for ep, why in report.dropped],
         "backup_dir": str(Path(report.backup_dir).relative_to(root)) if report.backup_dir else ""})
     _write_json_atomic(root / SIDECAR_PATH, side)
-
-
-def _write_one_row_group_per_episode(table: pa.Table, path: Path) -> None:
-    # The reader (and LeRobot's own layout) expects one row group per episode.
-    episodes = table.column("episode_index").to_numpy()
-    with pq.ParquetWriter(path, table.schema, compression="snappy", use_dictionary=True) as writer:
-        for ep in np.unique(episodes):
-            idx = np.flatnonzero(episodes == ep)
-            writer.write_table(table.slice(int(idx[0]), len(idx)))
 
 
 def _rewrite_metadata(root: Path, info: dict, kept_rows: list[dict]) -> None:

@@ -84,6 +84,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from surrol_data.datasets import consolidate as files
 from surrol_data.datasets import journal
 from surrol_data.datasets.card import write_dataset_card
 from surrol_data.datasets.hub_offline import hub_offline, lerobot_root, quiet_video_encoder, usable_repo_id
@@ -187,7 +188,7 @@ class DatasetWriter:
                  append: bool = False, checkpoint_every: int = 10, checkpoint_interval_s: float | None = 60.0,
                  command: str | None = None, handle_signals: bool = True, fast_save: bool = True,
                  camera_version: int = CAMERA_VERSION, camera_renderer: str = DEFAULT_CAMERA_RENDERER,
-                 lazy: bool = True):
+                 lazy: bool = True, consolidate: bool = True):
         self.root = Path(root)
         # A new state-only dataset is created at the first checkpoint, not at open (see _open_lazily); lazy=False
         # creates it at open, e.g. for an interactive session, whose operator would rather wait before the first
@@ -209,6 +210,7 @@ class DatasetWriter:
         self.command = command if command is not None else shlex.join(sys.argv)
         self.handle_signals = handle_signals
         self.fast_save = fast_save
+        self.consolidate = consolidate   # False: keep one file per checkpoint (the layout a killed recording leaves)
         for name, value in (("task", task), ("env_id", env_id), ("task_description", task_description)):
             if not isinstance(value, str) or not value:
                 raise ValueError(f"DatasetRecorder: {name} must be a non-empty string, got {value!r}")
@@ -281,6 +283,7 @@ class DatasetWriter:
         self._last_checkpoint_t = 0.0
         self._durable = 0
         self._session: dict = {}
+        self._files_at_open: set[str] = set()
         self._lock = DatasetLock(self.root)
         self._created = False
 
@@ -302,6 +305,7 @@ class DatasetWriter:
         if self._open:
             return
         self._git_commit = git_commit()
+        self._files_at_open = files.dataset_files(self.root)  # what close() leaves as it is
         if self.lazy and not self._exists and not self.dims["cameras"]:
             self._open_lazily()
             return
@@ -395,6 +399,8 @@ class DatasetWriter:
                     # Nothing was recorded (e.g. the first episode failed): leave no folder to block a retry.
                     shutil.rmtree(self.root, ignore_errors=True)
                     return
+                if self.consolidate:
+                    self._consolidate()
                 self._session["ended_at"] = utc_now_iso()
                 self._write_sidecar(checkpoint=True)
                 write_dataset_card(self.root)
@@ -404,6 +410,19 @@ class DatasetWriter:
             self._unsaved.clear()
             self._lock.release()
             self._restore_signal_handlers()
+
+    def _consolidate(self) -> None:
+        """The files this session wrote, one per checkpoint, into as few as lerobot's size limit allows
+        (:mod:`surrol_data.datasets.consolidate`; before the session is marked ended, so that a kill in the middle
+        is a killed recording, which every command repairs). A failure before its commit point changes nothing:
+        the dataset stays complete, in more files."""
+        try:
+            files.consolidate(self.root, keep=self._files_at_open, show_progress=sys.stderr.isatty())
+        except Exception as e:  # noqa: BLE001 - e.g. a full disk: the episodes are all in the files already
+            if files.interrupted(self.root):
+                raise   # past its commit point: left for repair to finish (the session is not marked ended)
+            print(f"note: {self.root}: its files were not consolidated ({type(e).__name__}: {e}); the dataset is "
+                  "complete, in more files", file=sys.stderr)
 
     def _prepare_writer(self) -> None:
         # Rows, info.json and stats.json are written once per checkpoint, not per episode: the journal is what makes
@@ -644,13 +663,7 @@ class DatasetWriter:
 
     def _write_sidecar(self, checkpoint: bool = False) -> None:
         side = read_sidecar(self.root)
-        side.update({
-            "schema_version": SCHEMA_VERSION, "repo_id": self.repo_id, "task": self.task, "env_id": self.env_id,
-            "task_description": self.task_description, "robot_type": self.robot_type, "fps": FPS,
-            "package_version": package_version(), "updated_at": utc_now_iso(),
-            "provenance_columns": {k: t.__name__ for k, t in PROVENANCE_COLUMNS.items()},
-            "units": {"positions": "m", "angles": "rad", "path_length": "cm", "control_period_s": 1 / FPS},
-        })
+        side.update(sidecar_facts(self.repo_id, self.task, self.env_id, self.task_description, self.robot_type))
         if self.dims["cameras"]:
             side["camera_version"] = self.camera_version
             side["camera_renderer"] = self.camera_renderer
@@ -675,6 +688,17 @@ class DatasetWriter:
 
 
 _LEROBOT_DEFAULT_FEATURES = ("timestamp", "frame_index", "episode_index", "index", "task_index")
+
+
+def sidecar_facts(repo_id: str, task: str, env_id: str, task_description: str, robot_type: str) -> dict:
+    """The dataset-level facts of ``meta/surrol_data.json`` that every writing session states afresh."""
+    return {
+        "schema_version": SCHEMA_VERSION, "repo_id": repo_id, "task": task, "env_id": env_id,
+        "task_description": task_description, "robot_type": robot_type, "fps": FPS,
+        "package_version": package_version(), "updated_at": utc_now_iso(),
+        "provenance_columns": {k: t.__name__ for k, t in PROVENANCE_COLUMNS.items()},
+        "units": {"positions": "m", "angles": "rad", "path_length": "cm", "control_period_s": 1 / FPS},
+    }
 
 
 def _holds_no_episode(root: Path) -> bool:
