@@ -203,8 +203,8 @@ def test_filter_copies_the_stored_rows_as_the_recorder_would_write_them(tmp_path
             x = np.asarray(a.column(name).to_pylist(), np.float64)
             y = np.asarray(b.column(name).to_pylist(), np.float64)
             assert np.allclose(x, y, rtol=1e-9, atol=1e-9), name
-        elif name != "provenance/recorded_at":
-            assert a.column(name).equals(b.column(name)), name
+        else:   # as text: a NaN equals a NaN there
+            assert json.dumps(a.column(name).to_pylist()) == json.dumps(b.column(name).to_pylist()), name
     sa, sb = (json.loads((r / "meta" / "stats.json").read_text()) for r in (fast, slow))
     assert sa.keys() == sb.keys()
     for feature in sa:
