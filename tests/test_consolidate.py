@@ -4,6 +4,7 @@ recording every episode again, and the result is what the recorder would have wr
 
 from __future__ import annotations
 
+import contextlib
 import json
 import subprocess
 import sys
@@ -222,3 +223,53 @@ def test_filter_copies_the_stored_rows_as_the_recorder_would_write_them(tmp_path
     for new, ep in enumerate(keep):
         assert_same(DatasetReader(fast).trajectory(new), make_traj(ep, STEPS))
     assert not bulk_copy.staging_folder(tmp_path / "fast").exists()
+
+
+def test_copied_statistics_aggregate_as_lerobot_does(tmp_path):
+    """bulk_copy.aggregate_stats (column by column, no lerobot import) against lerobot's aggregate_stats."""
+    from lerobot.datasets.compute_stats import aggregate_stats as lerobot_aggregate
+
+    from surrol_data.datasets.bulk_copy import aggregate_stats
+    from surrol_data.datasets.reader import column_to_numpy
+
+    root = record(tmp_path / "ds", 0, 12)
+    meta = pq.read_table(root / EPISODES_DIR / "chunk-000" / "file-000.parquet")
+    per_episode = [{} for _ in range(meta.num_rows)]
+    for name in meta.column_names:
+        if name.startswith("stats/"):
+            _, feature, stat = name.split("/", 2)
+            for row, value in enumerate(column_to_numpy(meta.column(name)).reshape(meta.num_rows, -1)):
+                per_episode[row].setdefault(feature, {})[stat] = value
+    expected, got = lerobot_aggregate(per_episode), aggregate_stats(meta)
+    assert got.keys() == expected.keys()
+    for feature in expected:
+        assert got[feature].keys() == expected[feature].keys(), feature
+        for stat, value in expected[feature].items():
+            assert got[feature][stat].shape == value.shape and np.allclose(got[feature][stat], value, rtol=1e-12,
+                                                                           atol=0), (feature, stat)
+
+
+def test_lerobot_check_builds_the_arrow_schema_once_and_loads_the_same(tmp_path, monkeypatch, LeRobotDataset):
+    import datasets
+
+    from surrol_data.datasets.lerobot_compat import quick_parquet_load
+
+    root = record(tmp_path / "ds", 0, 30)   # 30 row groups: 30 record batches for Hugging Face datasets
+    calls = []
+    schema = datasets.Features.arrow_schema
+
+    def counted(self):
+        calls.append(1)
+        return schema.fget(self)
+
+    monkeypatch.setattr(datasets.Features, "arrow_schema", property(counted))
+    loaded = []
+    for quick, cache in ((False, "hf_plain"), (True, "hf_quick")):   # a cache each: both really load the files
+        monkeypatch.setattr(datasets.config, "HF_DATASETS_CACHE", tmp_path / cache)
+        calls.clear()
+        with quick_parquet_load() if quick else contextlib.nullcontext():
+            ds = LeRobotDataset("local/ds", root=root, video_backend="pyav")
+        loaded.append((len(calls), ds.hf_dataset.data.table))
+    (plain_calls, plain), (quick_calls, quick) = loaded
+    assert plain_calls >= 30 and quick_calls < 10, (plain_calls, quick_calls)
+    assert quick.equals(plain)

@@ -240,7 +240,7 @@ def test_recorder_checkpoints_without_resume_and_stays_valid(dataset, tmp_path, 
                                         if k not in ("timestamp", "frame_index", "episode_index", "index",
                                                      "task_index")},
                          task="NeedleReach", env_id="SurRoL/NeedleReach-v0", task_description="reach",
-                         checkpoint_every=2) as rec:
+                         checkpoint_every=2, consolidate=False) as rec:   # the files the checkpoints write, as left
         for i, traj in enumerate(trajs[:5]):
             rec.record(traj, {"source": "script", "device": "none", "skill": "scripted", "seed": i})
             assert rec.durable_episodes == 2 * ((i + 1) // 2)

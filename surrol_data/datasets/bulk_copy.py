@@ -10,7 +10,7 @@ bytes in the new dataset (the content hash and the seal cover no index). Only wh
 data and ``meta/episodes`` files with pyarrow, renumbers those columns, and writes lerobot's layout (one row group
 per episode in the data files, as lerobot's writer and ``aggregate_datasets`` write them; as few files as
 ``data_files_size_in_mb`` allows), ``info.json`` with the new totals, ``stats.json`` aggregated over the kept
-episodes by lerobot's own ``aggregate_stats``, the tasks, the sidecar (one session, as the recorder writes it)
+episodes as lerobot's ``aggregate_stats`` does (:func:`aggregate_stats`), the tasks, the sidecar (one session, as the recorder writes it)
 and the device traces. An input without seals gets them, as the recorder gives every new dataset.
 
 A camera dataset still goes through the recorder (its video segments are decoded and encoded again). What the
@@ -21,6 +21,7 @@ a killed copy leaves no output.
 
 from __future__ import annotations
 
+import json
 import shutil
 from collections.abc import Callable
 from pathlib import Path
@@ -213,16 +214,27 @@ def _write_meta(meta: pa.Table, built: Path, limit: float, chunks_size: int) -> 
     return pa.concat_tables(parts)
 
 
-def _episode_stats(meta: pa.Table) -> list[dict]:
-    """Each row's ``stats/<feature>/<stat>`` columns as lerobot's per-episode stats dicts."""
+def aggregate_stats(meta: pa.Table) -> dict[str, dict[str, np.ndarray]]:
+    """The dataset statistics over the rows' per-episode ``stats/<feature>/<stat>`` columns: lerobot's
+    ``compute_stats.aggregate_stats`` (the count-weighted mean, the parallel variance, min, max, count-weighted
+    quantiles), computed column by column instead of episode by episode — and without importing lerobot, whose
+    import (torch, diffusers) cost more CPU than the rest of a 5,000-episode copy."""
     columns: dict[str, dict[str, np.ndarray]] = {}
     for name in meta.column_names:
         if name.startswith("stats/"):
             _, feature, stat = name.split("/", 2)
-            values = column_to_numpy(meta.column(name))
-            columns.setdefault(feature, {})[stat] = values.reshape(meta.num_rows, -1)
-    return [{feature: {stat: values[i] for stat, values in stats.items()} for feature, stats in columns.items()}
-            for i in range(meta.num_rows)]
+            columns.setdefault(feature, {})[stat] = column_to_numpy(meta.column(name)).reshape(meta.num_rows, -1)
+    out = {}
+    for feature, stats in columns.items():
+        counts = stats["count"]
+        total = counts.sum(axis=0)
+        mean = (stats["mean"] * counts).sum(axis=0) / total
+        variance = ((stats["std"] ** 2 + (stats["mean"] - mean) ** 2) * counts).sum(axis=0) / total
+        out[feature] = {"min": stats["min"].min(axis=0), "max": stats["max"].max(axis=0), "mean": mean,
+                        "std": np.sqrt(variance), "count": total}
+        for key in (k for k in stats if k.startswith("q") and k[1:].isdigit()):
+            out[feature][key] = (stats[key] * counts).sum(axis=0) / total
+    return out
 
 
 def _write_metadata(source: DatasetReader, built: Path, out: Path, meta: pa.Table, *, shared: dict, command: str,
@@ -230,7 +242,6 @@ def _write_metadata(source: DatasetReader, built: Path, out: Path, meta: pa.Tabl
     """info.json, stats.json, tasks, sidecar (one finished session) and card of the new dataset."""
     from surrol_data.datasets.card import write_dataset_card
     from surrol_data.datasets.hub_offline import local_repo_id
-    from surrol_data.datasets.lerobot_compat import aggregate_stats, write_stats
     from surrol_data.datasets.schema import package_version, utc_now_iso
     from surrol_data.datasets.writer import _write_json_atomic, git_commit, sidecar_facts
 
@@ -240,7 +251,8 @@ def _write_metadata(source: DatasetReader, built: Path, out: Path, meta: pa.Tabl
                  "total_tasks": pq.read_metadata(built / _TASKS).num_rows,
                  "splits": {"train": f"0:{meta.num_rows}"}})
     _write_json_atomic(built / INFO_PATH, info)
-    write_stats(aggregate_stats(_episode_stats(meta)), built)
+    stats = {feature: {k: v.tolist() for k, v in values.items()} for feature, values in aggregate_stats(meta).items()}
+    (built / "meta" / "stats.json").write_text(json.dumps(stats, indent=4))   # as lerobot's write_stats writes it
     now = utc_now_iso()
     side = sidecar_facts(local_repo_id(out), shared["task"], shared["env_id"], shared["task_description"],
                          shared["robot_type"])

@@ -22,7 +22,8 @@ The recorder needs five things lerobot 0.6 has no public API for (shared/docs/re
   rest of ``save_episode``; the table is checked equal to ``from_dict``'s (schema metadata included) once per
   feature set, else that set keeps ``from_dict``.
 
-and the tools use ``compute_stats.aggregate_stats`` / ``io_utils.write_stats`` (repair, upgrade),
+and validate's lerobot check loads through :func:`quick_parquet_load` (a Hugging Face ``datasets`` schema built once
+per load, not per batch), and the tools use ``compute_stats.aggregate_stats`` / ``io_utils.write_stats`` (repair, upgrade),
 ``feature_utils.get_hf_features_from_features`` (upgrade) and ``aggregate.aggregate_datasets`` /
 ``io_utils.write_table_one_row_group_per_episode`` (merge; it also repairs two things 0.6.1's aggregation gets
 wrong for our datasets: the data files lose their fixed-size vector types, and the episodes-metadata rows of a
@@ -35,6 +36,7 @@ Each patch also checks that what it touches is there and otherwise falls back to
 
 from __future__ import annotations
 
+import contextlib
 import warnings
 from importlib.metadata import PackageNotFoundError, version
 
@@ -64,6 +66,9 @@ INTERNALS = (
     # episode after its pandas rewrite of the data files
     ("lerobot.datasets.aggregate", "aggregate_datasets"),
     ("lerobot.datasets.io_utils", "write_table_one_row_group_per_episode"),
+    # validate's lerobot check (quick_parquet_load): what Hugging Face datasets loads lerobot's parquet files with
+    ("datasets.packaged_modules.parquet.parquet", "Parquet._cast_table"),
+    ("datasets.table", "table_cast"),
 )
 
 _warned = False
@@ -526,3 +531,37 @@ def hf_features(features: dict):
     from lerobot.datasets.feature_utils import get_hf_features_from_features
 
     return get_hf_features_from_features(features)
+
+
+@contextlib.contextmanager
+def quick_parquet_load():
+    """Inside the block, Hugging Face ``datasets`` (through which ``LeRobotDataset`` loads the parquet files) builds
+    the features' arrow schema once per load instead of once per record batch.
+
+    Its parquet builder reads a file one batch per row group — lerobot writes one row group per episode — and casts
+    each batch to ``features.arrow_schema``, a property that rebuilds the schema from the features every time
+    (~5 ms): 10,000 episodes spent ~50 s of CPU there, most of validate's lerobot check. The cast itself and the
+    loaded dataset are unchanged. Without that builder (another ``datasets``), the block changes nothing."""
+    try:
+        from datasets.packaged_modules.parquet import parquet as hf_parquet
+        from datasets.table import table_cast
+
+        original = hf_parquet.Parquet._cast_table
+    except (ImportError, AttributeError):
+        yield
+        return
+
+    def _cast_table(self, pa_table):
+        features = self.info.features
+        if features is None:
+            return original(self, pa_table)
+        cached = getattr(self, "_surrol_schema", None)
+        if cached is None or cached[0] is not features:
+            cached = self._surrol_schema = (features, features.arrow_schema)
+        return table_cast(pa_table, cached[1])
+
+    hf_parquet.Parquet._cast_table = _cast_table
+    try:
+        yield
+    finally:
+        hf_parquet.Parquet._cast_table = original

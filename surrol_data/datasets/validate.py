@@ -918,8 +918,10 @@ def _check_lerobot(root: Path, info: dict) -> list[Problem]:
     try:
         from surrol_data.datasets.writer import VIDEO_BACKEND, _lerobot_dataset_class
 
+        from surrol_data.datasets.lerobot_compat import quick_parquet_load
+
         side = read_sidecar(root)
-        with hub_offline():
+        with hub_offline(), quick_parquet_load():
             ds = _lerobot_dataset_class()(usable_repo_id(side.get("repo_id"), root), root=lerobot_root(root),
                                           video_backend=VIDEO_BACKEND)
         if ds.num_episodes != int(info["total_episodes"]) or ds.num_frames != int(info["total_frames"]):
