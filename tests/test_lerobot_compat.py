@@ -47,7 +47,8 @@ def test_checkpoints_take_the_fast_path_and_keep_every_episode(tmp_path, monkeyp
 
     trajs = [make_traj(i, 6 + i) for i in range(3)]
     with DatasetRecorder(tmp_path / "d", features=frame_features(OBS, GOAL, 5, 1), checkpoint_every=1,
-                         handle_signals=False, **RECORDER_ARGS) as rec:
+                         handle_signals=False, consolidate=False,   # the files the checkpoints write, as left
+                         **RECORDER_ARGS) as rec:
         monkeypatch.setattr(LeRobotDataset, "resume", classmethod(no_resume))
         for i, t in enumerate(trajs):
             rec.record(t, provenance(i))
