@@ -27,6 +27,9 @@ Durability — what survives how the process ends:
   After a hard kill, :func:`surrol_data.datasets.repair.repair` (``surrol-data repair``, run automatically
   by every command that opens the dataset) cuts the unreadable files back and replays the journal: every
   finished episode is kept; only the one in progress is lost.
+* When the session ends, the files its checkpoints left (one data and one ``meta/episodes`` file per checkpoint) are
+  rewritten into as few as lerobot's size limit allows (:mod:`surrol_data.datasets.consolidate`; ``consolidate=False``
+  keeps them), atomically: a kill in the middle is finished or undone by ``repair``, every episode kept.
 * One writer at a time: the recorder holds a lock on the folder (:mod:`surrol_data.datasets.lock`); a
   second writer gets a clear error. A session that records no episode removes the folder it created.
 
