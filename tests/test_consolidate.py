@@ -216,7 +216,7 @@ def test_filter_copies_the_stored_rows_as_the_recorder_would_write_them(tmp_path
     side = json.loads((fast / SIDECAR_PATH).read_text())
     assert side["derived_from"]["episodes"][3] == {"episode": 3, "source_root": str(src.resolve()),
                                                    "source_episode": 11}
-    assert side["seals"] == 1 and "ended_at" in side["sessions"][-1]
+    assert side["seals"] == 1 and side["sessions"][-1]["started_at"] <= side["sessions"][-1]["ended_at"]
     assert validate_dataset(fast, check_reward=False) == []
     ds = LeRobotDataset("local/fast", root=fast, video_backend="pyav")
     assert (ds.num_episodes, ds.num_frames) == (len(keep), len(keep) * STEPS)
@@ -273,3 +273,24 @@ def test_lerobot_check_builds_the_arrow_schema_once_and_loads_the_same(tmp_path,
     (plain_calls, plain), (quick_calls, quick) = loaded
     assert plain_calls >= 30 and quick_calls < 10, (plain_calls, quick_calls)
     assert quick.equals(plain)
+
+
+def test_a_copy_that_fails_midway_leaves_no_output(tmp_path, monkeypatch):
+    from surrol_data.datasets import bulk_copy
+    from surrol_data.datasets.merge import filter_dataset
+
+    src = record(tmp_path / "src", 0, 12)
+    out = tmp_path / "out"
+
+    def disk_full(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(bulk_copy, "_write_metadata", disk_full)
+    with pytest.raises(OSError, match="No space left"):
+        filter_dataset(src, out, "skill == 'novice'", progress=False)
+    assert not out.exists() and not bulk_copy.staging_folder(out).exists()
+    monkeypatch.undo()
+    bulk_copy.staging_folder(out).mkdir()   # what a SIGKILL mid-copy leaves: the next copy clears it
+    (bulk_copy.staging_folder(out) / "dataset").mkdir()
+    filter_dataset(src, out, "skill == 'novice'", progress=False)
+    assert len(DatasetReader(out)) == 8 and not bulk_copy.staging_folder(out).exists()

@@ -63,6 +63,7 @@ def copy_state_episodes(readers: list[DatasetReader], selection: list[list[int]]
     from surrol_data.datasets.lock import DatasetLock, writer_pid
     from surrol_data.datasets.merge import _copy_trace
     from surrol_data.datasets.reader import DatasetError
+    from surrol_data.datasets.schema import utc_now_iso
 
     staging = staging_folder(out)
     if staging.exists():
@@ -71,6 +72,7 @@ def copy_state_episodes(readers: list[DatasetReader], selection: list[list[int]]
         shutil.rmtree(staging)   # left by a killed copy: it never became an output
     staging.mkdir(parents=True)
     built = staging / "dataset"
+    started = utc_now_iso()
     try:
         with DatasetLock(staging):
             built.mkdir()
@@ -78,7 +80,8 @@ def copy_state_episodes(readers: list[DatasetReader], selection: list[list[int]]
             derived_from = {**derived_from, "episodes": [
                 {"episode": i, "source_root": str(reader.root), "source_episode": ep}
                 for i, (reader, ep) in enumerate(origin)]}
-            _write_metadata(readers[0], built, out, meta, shared=shared, command=command, derived_from=derived_from)
+            _write_metadata(readers[0], built, out, meta, shared=shared, command=command, derived_from=derived_from,
+                            started=started)
             for i, (reader, ep) in enumerate(origin):
                 _copy_trace(reader.root, ep, built, i)
         built.rename(out)   # atomic: before it, no output; after it, the whole output
@@ -238,7 +241,7 @@ def aggregate_stats(meta: pa.Table) -> dict[str, dict[str, np.ndarray]]:
 
 
 def _write_metadata(source: DatasetReader, built: Path, out: Path, meta: pa.Table, *, shared: dict, command: str,
-                    derived_from: dict) -> None:
+                    derived_from: dict, started: str) -> None:
     """info.json, stats.json, tasks, sidecar (one finished session) and card of the new dataset."""
     from surrol_data.datasets.card import write_dataset_card
     from surrol_data.datasets.hub_offline import local_repo_id
@@ -256,8 +259,8 @@ def _write_metadata(source: DatasetReader, built: Path, out: Path, meta: pa.Tabl
     now = utc_now_iso()
     side = sidecar_facts(local_repo_id(out), shared["task"], shared["env_id"], shared["task_description"],
                          shared["robot_type"])
-    side.update({"created_at": now, "seals": 1,
-                 "sessions": [{"started_at": now, "command": command, "git_commit": git_commit(),
+    side.update({"created_at": started, "seals": 1,
+                 "sessions": [{"started_at": started, "command": command, "git_commit": git_commit(),
                                "package_version": package_version(), "first_episode": 0,
                                "episodes": meta.num_rows, "ended_at": now}],
                  "checkpoint": {"at": now, "episodes": meta.num_rows, "info": info},
