@@ -126,8 +126,8 @@ def _plan(root: Path, staging: Path, keep: set[str], progress) -> dict | None:
     kept_files = sorted(keep)
     data_rel = [p.relative_to(root).as_posix() for p in data_paths]
     meta_rel = [p.relative_to(root).as_posix() for p in meta_paths]
-    if len(data_paths) < 2 and len(meta_paths) < 2:
-        return None
+    if not data_paths or not meta_paths or (len(data_paths) < 2 and len(meta_paths) < 2):
+        return None   # nothing to gain (or not a session's data and metadata together: left as they are)
     # Only a tail of each folder is renumbered: a kept file after a rewritten one would collide with the new names.
     for rels, sub in ((data_rel, DATA_DIR), (meta_rel, EPISODES_DIR)):
         if rels and any(k.startswith(sub + "/") and k > rels[0] for k in kept_files):
