@@ -369,8 +369,10 @@ class DatasetReader:
             # only the row groups (lerobot writes one per episode) that hold wanted episodes: a consolidated file
             # holds thousands of episodes, most of them not asked for
             groups = self._groups_holding(path, wanted)
-            pf = pq.ParquetFile(path)
-            table = pf.read_row_groups(groups, columns=cols) if groups else pf.read(columns=cols)
+            if groups and len(groups) < len(self._row_groups[path]):
+                table = pq.ParquetFile(path).read_row_groups(groups, columns=cols)
+            else:   # every row group wanted, or no statistics to choose by: the whole file in one read
+                table = pq.read_table(path, columns=cols)
             tables.append(table.filter(pc.is_in(table.column("episode_index"), pa.array(wanted, pa.int64()))))
         if not tables:  # no episode asked for, or an empty dataset
             all_files = parquet_files(self.root, DATA_DIR)
