@@ -366,12 +366,12 @@ class DatasetReader:
             if wanted is None:
                 tables.append(pq.read_table(path, columns=cols))
                 continue
-            # only the row groups (lerobot writes one per episode) that hold wanted episodes: a consolidated file
-            # holds thousands of episodes, most of them not asked for
+            # only the row groups (lerobot writes one per episode) that hold wanted episodes when they are few: a
+            # consolidated file holds thousands of episodes, most of them not asked for
             groups = self._groups_holding(path, wanted)
-            if groups and len(groups) < len(self._row_groups[path]):
+            if groups and 2 * len(groups) < len(self._row_groups[path]):
                 table = pq.ParquetFile(path).read_row_groups(groups, columns=cols)
-            else:   # every row group wanted, or no statistics to choose by: the whole file in one read
+            else:   # most row groups wanted, or no statistics to choose by: the whole file in one read
                 table = pq.read_table(path, columns=cols)
             tables.append(table.filter(pc.is_in(table.column("episode_index"), pa.array(wanted, pa.int64()))))
         if not tables:  # no episode asked for, or an empty dataset
