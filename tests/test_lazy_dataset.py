@@ -247,6 +247,8 @@ def test_lerobot_imported_in_the_background_while_recording(tmp_path):
                          **RECORDER_ARGS) as rec:
         for i in range(12):
             rec.record(make_traj(i, STEPS), provenance(i))
-    for rel in ("data/chunk-000/file-000.parquet", "data/chunk-000/file-001.parquet"):
+    rels = sorted(p.relative_to(whole).as_posix() for p in (whole / "data").rglob("*.parquet"))
+    assert rels == sorted(p.relative_to(root).as_posix() for p in (root / "data").rglob("*.parquet"))
+    for rel in rels:   # (the two checkpoints' files, consolidated when the recording finished)
         assert pq.read_table(root / rel).equals(pq.read_table(whole / rel)), rel
     assert len(DatasetReader(root)) == 12
