@@ -16,8 +16,9 @@ from test_recorder import GOAL, OBS, RECORDER_ARGS, make_traj, provenance
 
 def test_episode_rows_are_written_a_checkpoint_at_a_time(tmp_path):
     root = tmp_path / "ds"
+    # consolidate=False: the files the checkpoints write (a finished recording merges them, test_consolidate.py)
     with DatasetRecorder(root, features=frame_features(OBS, GOAL, 5, 1), checkpoint_every=5,
-                         checkpoint_interval_s=None, **RECORDER_ARGS) as rec:
+                         checkpoint_interval_s=None, consolidate=False, **RECORDER_ARGS) as rec:
         for i in range(12):
             rec.record(make_traj(i, 8), provenance(i))
             if i == 6:   # between checkpoints: the two durable so far are in info.json, the rest in the journal

@@ -61,7 +61,6 @@ def copy_state_episodes(readers: list[DatasetReader], selection: list[list[int]]
     doc); ``progress(n)`` after each ``n`` episodes. ``derived_from`` goes into the sidecar, with ``episodes``: where
     each new episode came from."""
     from surrol_data.datasets.lock import DatasetLock, writer_pid
-    from surrol_data.datasets.merge import _copy_trace
     from surrol_data.datasets.reader import DatasetError
     from surrol_data.datasets.schema import utc_now_iso
 
@@ -83,7 +82,7 @@ def copy_state_episodes(readers: list[DatasetReader], selection: list[list[int]]
             _write_metadata(readers[0], built, out, meta, shared=shared, command=command, derived_from=derived_from,
                             started=started)
             for i, (reader, ep) in enumerate(origin):
-                _copy_trace(reader.root, ep, built, i)
+                copy_trace(reader.root, ep, built, i)
         built.rename(out)   # atomic: before it, no output; after it, the whole output
     finally:
         shutil.rmtree(staging, ignore_errors=True)
@@ -267,3 +266,16 @@ def _write_metadata(source: DatasetReader, built: Path, out: Path, meta: pa.Tabl
                  "derived_from": derived_from})
     _write_json_atomic(built / SIDECAR_PATH, side)
     write_dataset_card(built)
+
+
+def copy_trace(src_root: Path, src_ep: int, dst_root: Path, dst_ep: int) -> None:
+    """A haptic episode's device trace goes with it, under its new index (the file holds no index itself)."""
+    import shutil
+
+    from surrol_data.datasets.repair import TRACE_DIR
+
+    src = src_root / TRACE_DIR / f"episode_{src_ep:06d}.npz"
+    if src.exists():
+        dst = dst_root / TRACE_DIR / f"episode_{dst_ep:06d}.npz"
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(src, dst)

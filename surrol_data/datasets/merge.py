@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from surrol_data.datasets.bulk_copy import copy_trace
 from surrol_data.datasets.info import read_sidecar
 from surrol_data.datasets.reader import DatasetError, DatasetReader
 from surrol_data.datasets.schema import (CAMERA_VERSION, DEFAULT_CAMERA_RENDERER, PROVENANCE_COLUMNS, SIDECAR_PATH,
@@ -187,7 +188,7 @@ def copy_episodes(selection: list[tuple[str | Path, list[int]]], out: str | Path
                 for ep, traj in _read_in_batches(reader, episodes):
                     prov = {k: _plain(rows[ep][k]) for k in PROVENANCE_COLUMNS}
                     new_index = recorder.record(traj, prov)
-                    _copy_trace(reader.root, int(ep), out, new_index)
+                    copy_trace(reader.root, int(ep), out, new_index)
                     provenance_of.append({"episode": new_index, "source_root": str(reader.root), "source_episode": int(ep)})
                     bar.update(1)
     finally:
@@ -311,7 +312,7 @@ def _aggregate(readers: list[DatasetReader], out: Path, shared: dict, *, command
                 for ep in reader.select():
                     provenance_of.append({"episode": offset + int(ep), "source_root": str(reader.root),
                                           "source_episode": int(ep)})
-                    _copy_trace(reader.root, int(ep), built, offset + int(ep))
+                    copy_trace(reader.root, int(ep), built, offset + int(ep))
                 offset += len(reader)
             side = read_sidecar(readers[0].root)
             for stale in ("checkpoint", "sessions", "derived_from", "created_at", "seals"):
@@ -385,19 +386,6 @@ def _point_episode_rows_at_their_files(root: Path) -> None:
         tmp = path.with_name(path.name + ".tmp")
         pq.write_table(table, tmp)
         os.replace(tmp, path)
-
-
-def _copy_trace(src_root: Path, src_ep: int, dst_root: Path, dst_ep: int) -> None:
-    """A haptic episode's device trace goes with it, under its new index (the file holds no index itself)."""
-    import shutil
-
-    from surrol_data.datasets.repair import TRACE_DIR
-
-    src = src_root / TRACE_DIR / f"episode_{src_ep:06d}.npz"
-    if src.exists():
-        dst = dst_root / TRACE_DIR / f"episode_{dst_ep:06d}.npz"
-        dst.parent.mkdir(parents=True, exist_ok=True)
-        shutil.copyfile(src, dst)
 
 
 @contextlib.contextmanager
