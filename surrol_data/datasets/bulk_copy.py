@@ -31,7 +31,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from surrol_data.datasets.consolidate import next_file
+from surrol_data.datasets.consolidate import next_file, set_column
 from surrol_data.datasets.reader import DATA_DIR, EPISODES_DIR, INFO_PATH, DatasetReader, column_to_numpy, parquet_files
 from surrol_data.datasets.schema import PROVENANCE_COLUMNS, PROVENANCE_PREFIX, PROVENANCE_SEAL, SIDECAR_PATH
 
@@ -105,12 +105,6 @@ def _frames(reader: DatasetReader, episodes: list[int], columns: list[str]) -> p
     return table.take(pa.array(take, pa.int64()))
 
 
-def _set(table: pa.Table, name: str, values) -> pa.Table:
-    at = table.column_names.index(name)
-    field = table.schema.field(at)
-    return table.set_column(at, field, pa.array(values, field.type))
-
-
 def _shift_stats(meta: pa.Table, feature: str, delta: np.ndarray) -> pa.Table:
     """``stats/<feature>/*`` of each row moved by ``delta`` (the renumbered ``episode_index`` and ``index``: every
     value of the episode moves by the same amount, so its min, max, mean and quantiles do; std and count stay)."""
@@ -152,8 +146,8 @@ def _write_tables(readers, selection, built: Path, progress) -> tuple[pa.Table, 
                 lengths = column_to_numpy(meta.column("length")).astype(np.int64)
                 new_ep = np.arange(len(origin), len(origin) + len(batch), dtype=np.int64)
                 starts = frames_so_far + np.concatenate([[0], np.cumsum(lengths)[:-1]])
-                frames = _set(frames, "episode_index", np.repeat(new_ep, lengths))
-                frames = _set(frames, "index", np.arange(frames_so_far, frames_so_far + frames.num_rows))
+                frames = set_column(frames, "episode_index", np.repeat(new_ep, lengths))
+                frames = set_column(frames, "index", np.arange(frames_so_far, frames_so_far + frames.num_rows))
                 meta = _shift_stats(meta, "episode_index", new_ep - np.asarray(batch, np.int64))
                 meta = _shift_stats(meta, "index", starts - column_to_numpy(meta.column("dataset_from_index")))
                 chunk_col, file_col = np.empty(len(batch), np.int64), np.empty(len(batch), np.int64)
@@ -174,7 +168,7 @@ def _write_tables(readers, selection, built: Path, progress) -> tuple[pa.Table, 
                 for name, values in (("episode_index", new_ep), ("dataset_from_index", starts),
                                      ("dataset_to_index", starts + lengths), ("data/chunk_index", chunk_col),
                                      ("data/file_index", file_col)):
-                    meta = _set(meta, name, values)
+                    meta = set_column(meta, name, values)
                 metas.append(_sealed(meta))
                 origin += [(reader, ep) for ep in batch]
                 frames_so_far += int(lengths.sum())
@@ -206,8 +200,8 @@ def _write_meta(meta: pa.Table, built: Path, limit: float, chunks_size: int) -> 
     parts = []
     for start in range(0, meta.num_rows, rows_per_file):
         part = meta.slice(start, rows_per_file)
-        part = _set(part, "meta/episodes/chunk_index", [chunk] * part.num_rows)
-        part = _set(part, "meta/episodes/file_index", [file] * part.num_rows)
+        part = set_column(part, "meta/episodes/chunk_index", [chunk] * part.num_rows)
+        part = set_column(part, "meta/episodes/file_index", [file] * part.num_rows)
         path = built / EPISODES_DIR / f"chunk-{chunk:03d}" / f"file-{file:03d}.parquet"
         path.parent.mkdir(parents=True, exist_ok=True)
         pq.write_table(part, path)

@@ -109,7 +109,8 @@ def _write_synced(write, path: Path) -> None:
         os.fsync(fh.fileno())
 
 
-def _set_column(table: pa.Table, name: str, values) -> pa.Table:
+def set_column(table: pa.Table, name: str, values) -> pa.Table:
+    """``table`` with column ``name`` replaced by ``values``, in the column's own type."""
     at = table.column_names.index(name)
     field = table.schema.field(at)
     return table.set_column(at, field, pa.array(values, field.type))
@@ -154,8 +155,8 @@ def _plan(root: Path, staging: Path, keep: set[str], progress) -> dict | None:
         new.append(name)
         moved_to.update({p.relative_to(root).as_posix(): name for p in group})
     new_location = [_indices(moved_to[rel]) for rel in said]
-    meta = _set_column(meta, _DATA_LOCATION[0], [c for c, _ in new_location])
-    meta = _set_column(meta, _DATA_LOCATION[1], [f for _, f in new_location])
+    meta = set_column(meta, _DATA_LOCATION[0], [c for c, _ in new_location])
+    meta = set_column(meta, _DATA_LOCATION[1], [f for _, f in new_location])
 
     per_row = sum(p.stat().st_size for p in meta_paths) / meta.num_rows
     rows_per_file = max(1, int(limit // max(per_row, 1.0)))
@@ -165,8 +166,8 @@ def _plan(root: Path, staging: Path, keep: set[str], progress) -> dict | None:
     for start, name in zip(starts, meta_names, strict=True):
         part = meta.slice(start, rows_per_file)
         chunk, file = _indices(name)
-        part = _set_column(part, _META_LOCATION[0], [chunk] * part.num_rows)
-        part = _set_column(part, _META_LOCATION[1], [file] * part.num_rows)
+        part = set_column(part, _META_LOCATION[0], [chunk] * part.num_rows)
+        part = set_column(part, _META_LOCATION[1], [file] * part.num_rows)
         _write_synced(lambda path, t=part: pq.write_table(t, path), staging / "new" / name)
         new.append(name)
     return {"remove": data_rel + meta_rel, "add": new}
