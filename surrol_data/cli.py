@@ -60,6 +60,23 @@ def _disk_full_is_an_error(path: Path):
               f"stopped is repaired by `surrol-data repair {path}` or by the next command that opens it)")
 
 
+@contextlib.contextmanager
+def _ctrl_c_says_what_is_kept(out: Path):
+    """Ctrl-C ends a recording (the recorder has finalized every episode finished before it, on the way out) with
+    what the dataset holds and how to go on, not a silent exit."""
+    try:
+        yield
+    except KeyboardInterrupt:
+        import json
+
+        info = out / "meta" / "info.json"
+        held = json.loads(info.read_text()).get("total_episodes", 0) if info.is_file() else 0
+        Console(stderr=True).print(f"stopped by Ctrl-C: {out} holds {held} episodes, every one finished before the "
+                                   "stop; run the same command with --append to record more", highlight=False,
+                                   soft_wrap=True)
+        raise typer.Exit(130) from None
+
+
 def _note(message: str) -> None:
     """Something the user should know that is not an error (e.g. an automatic repair)."""
     Console(stderr=True).print(f"[yellow]note:[/] {escape(message)}", highlight=False)
@@ -163,6 +180,18 @@ def _camera_renderer(renderer: Optional[str], size: Optional[tuple[int, int]]) -
     choices = camera_renderers()
     if renderer not in choices:
         _fail(f"--renderer must be one of {', '.join(choices)}; got {renderer!r}")
+    if renderer == "panda3d":   # can it draw here? Said now, in this command's words, before any dataset exists
+        from surrol_data.extras import MissingExtra, require
+
+        try:
+            require("panda3d")
+        except MissingExtra as e:
+            _fail(str(e))
+        from surrol_data.render.display import in_words_of, unavailable_reason
+
+        why = unavailable_reason()
+        if why is not None:
+            _fail(in_words_of(why, ", or draw with TinyRenderer (--renderer tiny)"))
     return renderer
 
 
@@ -287,7 +316,7 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
                                                  "seeds; local worker processes, or SLURM jobs with --launcher "
                                                  "slurm), kept in OUT.shards/, then merged into OUT."),
             workers: int = typer.Option(1, min=1, help="script: roll the episodes out in N processes while this "
-                                        "one records them, in seed order (the same dataset as with 1)."),
+                                        "one records them, in seed order (the same dataset whatever N)."),
             launcher: Launcher = typer.Option(Launcher.local, help="--shards: where the shards run."),
             partition: Optional[str] = _partition_option(),
             account: Optional[str] = _account_option(),
@@ -319,7 +348,7 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
         from surrol_data.collect.script_source import camera_kwargs
 
         acting, policy_info = _supervised_policy(policy)
-        with _disk_full_is_an_error(out):
+        with _ctrl_c_says_what_is_kept(out), _disk_full_is_an_error(out):
             try:
                 result = collect_haptic(task, episodes, out, device=device, operator_id=operator_id, skill=skill,
                                         sides=side or None, mapping=parse_mapping(mapping or []), trace=trace,
@@ -339,7 +368,7 @@ def collect(source: Source = typer.Option(..., help="Where actions come from: th
         return
     from surrol_data.collect.script_source import collect_script
 
-    with _disk_full_is_an_error(out):
+    with _ctrl_c_says_what_is_kept(out), _disk_full_is_an_error(out):
         try:
             result = collect_script(task, episodes, out, seed=seed, max_steps=max_steps, keep_failures=keep_failures,
                                     append=append, command=command, camera_size=size, speed=speed,
@@ -376,7 +405,7 @@ def gui(out: Path = typer.Option(Path("gui_sessions"), help="Folder for the sess
     from surrol_data.collect.haptic_source import SKILLS
     from surrol_data.envs import TASKS
     from surrol_data.gui.app import DEVICES
-    from surrol_data.render.display import RendererUnavailable
+    from surrol_data.render.display import RendererUnavailable, in_words_of
 
     if task is not None and task not in TASKS:
         _fail(f"unknown task {task!r}; known tasks: {', '.join(TASKS)}")
@@ -392,7 +421,7 @@ def gui(out: Path = typer.Option(Path("gui_sessions"), help="Folder for the sess
     try:
         window = TrainingApp(out, offscreen=offscreen, seed=seed, policy=acting, policy_info=policy_info)
     except RendererUnavailable as e:
-        _fail(str(e))
+        _fail(in_words_of(str(e), ""))   # the GUI draws with Panda3D only
     window.set_session(device, skill, operator_id)
     if task is not None:
         window.choose_task(task)

@@ -9,7 +9,10 @@ where Panda3D cannot open an offscreen OpenGL buffer.
 from __future__ import annotations
 
 import json
+import os
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import gymnasium as gym
@@ -136,3 +139,17 @@ def test_renderer_needs_the_camera_and_a_known_name(tmp_path):
     said = " ".join(run.output.split())
     assert run.exit_code == 2 and "tiny, panda3d" in said and "'vulkan'" in said, said
     assert not (tmp_path / "x").exists()
+
+
+def test_panda3d_that_cannot_draw_here_is_said_up_front_in_the_commands_words(tmp_path):
+    """Where Panda3D finds no EGL (glvnd pointed at no vendor library: what a machine without Mesa's EGL is like), `collect
+    --renderer panda3d` stops before any dataset exists, names the packages and the option that does without."""
+    out = tmp_path / "x"
+    run = subprocess.run([sys.executable, "-m", "surrol_data.cli", "collect", "--source", "script", "--task", TASK,
+                          "--num-episodes", "1", "--camera", "--renderer", "panda3d", "--out", str(out)],
+                         capture_output=True, text=True, timeout=300,
+                         env={**os.environ, "__EGL_VENDOR_LIBRARY_FILENAMES": str(tmp_path / "no_vendor.json")})
+    said = " ".join((run.stdout + run.stderr).split())
+    assert run.returncode == 2 and "Traceback" not in said, said[-3000:]
+    assert "libegl-mesa0" in said and "--renderer tiny" in said and "camera_renderer" not in said, said
+    assert not out.exists()

@@ -1,13 +1,26 @@
-"""`collect --workers N`: episodes rolled out in N processes, recorded in seed order — the same dataset as one."""
+"""`collect --workers N`: episodes rolled out in N processes, recorded in seed order — the same dataset as one, and
+as rolling out in the recording process itself (``workers=0``)."""
 
 from __future__ import annotations
 
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from surrol_data.cli import app
 from surrol_data.collect.script_source import collect_script
+from surrol_data.datasets.journal import journal_dir
 from surrol_data.datasets.reader import DatasetReader
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
 
 
 def _provenance(root):
@@ -15,20 +28,22 @@ def _provenance(root):
     return episodes[[c for c in episodes.columns if not c.startswith(("seal/", "provenance_seal"))]]
 
 
-def test_two_workers_record_the_same_episodes_as_one(tmp_path):
+@pytest.mark.parametrize("workers", [1, 2])
+def test_worker_processes_record_the_same_episodes_as_the_recording_process(tmp_path, workers):
     # a short horizon: short episodes, some of them failures (kept), from seeds 0..3 in every process
-    one = collect_script("NeedleReach", 4, tmp_path / "one", max_steps=12, keep_failures=True, progress=False)
-    two = collect_script("NeedleReach", 4, tmp_path / "two", max_steps=12, keep_failures=True, progress=False,
-                         workers=2)
-    assert two.seeds == one.seeds and two.attempts == one.attempts
-    a, b = DatasetReader(tmp_path / "one"), DatasetReader(tmp_path / "two")
+    here = collect_script("NeedleReach", 4, tmp_path / "here", max_steps=12, keep_failures=True, progress=False,
+                          workers=0)
+    there = collect_script("NeedleReach", 4, tmp_path / "there", max_steps=12, keep_failures=True, progress=False,
+                           workers=workers)
+    assert there.seeds == here.seeds and there.attempts == here.attempts
+    a, b = DatasetReader(tmp_path / "here"), DatasetReader(tmp_path / "there")
     for ep in range(4):
         ta, tb = a.trajectory(ep), b.trajectory(ep)
         for name in ("observation", "action", "reward", "success", "tip_position", "jaw_angle"):
             np.testing.assert_array_equal(getattr(ta, name), getattr(tb, name), err_msg=f"episode {ep} {name}")
-    pa_, pb = _provenance(tmp_path / "one"), _provenance(tmp_path / "two")
+    pa_, pb = _provenance(tmp_path / "here"), _provenance(tmp_path / "there")
     assert list(pa_["content_hash"]) == list(pb["content_hash"])
-    assert list(pa_["seed"]) == list(pb["seed"]) == one.seeds
+    assert list(pa_["seed"]) == list(pb["seed"]) == here.seeds
 
 
 def test_workers_need_the_script_source(tmp_path):
@@ -36,3 +51,27 @@ def test_workers_need_the_script_source(tmp_path):
                                       "NeedleReach", "--num-episodes", "1", "--out", str(tmp_path / "x"),
                                       "--workers", "2"])
     assert result.exit_code == 2 and "--workers" in result.output and "Traceback" not in result.output
+
+
+def test_ctrl_c_keeps_the_finished_episodes_and_says_so(tmp_path):
+    """Ctrl-C reaches the whole process group (the recorder and its rollout worker): the command ends with what the
+    dataset holds and how to go on, no traceback; every episode finished before it is readable; no worker is left."""
+    out = tmp_path / "stopped"
+    proc = subprocess.Popen([sys.executable, "-m", "surrol_data.cli", "collect", "--source", "script", "--task",
+                             "NeedleReach", "--num-episodes", "10000", "--out", str(out)],
+                            cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    deadline = time.monotonic() + 300
+    while len(list(journal_dir(out).glob("episode_*.npz"))) < 2 and not (out / "data").is_dir():
+        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()[1][-3000:]
+        time.sleep(0.1)
+    os.killpg(proc.pid, signal.SIGINT)   # what a terminal does on Ctrl-C
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 130, err[-3000:]
+    assert "Traceback" not in err
+    held = int(re.search(r"holds (\d+) episodes", err).group(1))
+    assert held >= 2 and len(DatasetReader(out)) == held
+    assert "--append" in err
+    group = subprocess.run(["ps", "-o", "stat=,args=", "-g", str(proc.pid)], capture_output=True, text=True).stdout
+    alive = [line for line in group.splitlines() if not line.lstrip().startswith("Z")]   # zombies have exited
+    assert not alive, alive   # the rollout worker is gone too

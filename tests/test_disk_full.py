@@ -25,21 +25,23 @@ def run(*args):
     return {"code": r.exit_code, "output": r.output,
             "exception": None if r.exception is None or isinstance(r.exception, SystemExit) else repr(r.exception)}
 
-results = {}
-if phase == "full":
-    results["collect"] = run("collect", "--source", "script", "--task", "NeedleReach", "--num-episodes", "500",
-                             "--max-steps", "15", "--keep-failures", "--out", str(root))
-    side = json.loads((root / "meta" / "surrol_data.json").read_text())
-    durable = int(side["checkpoint"]["episodes"])
-    results["recorded"] = durable + len([i for i, _ in journal.entries(root) if i >= durable])
-    results["info"] = run("info", str(root))
-    results["repair"] = run("repair", str(root))
-else:
-    results["repair"] = run("repair", str(root))
-    results["validate"] = run("validate", str(root), "--no-lerobot", "--no-reward")
-    from surrol_data.datasets.reader import DatasetReader
-    results["episodes"] = len(DatasetReader(root))
-print("RESULTS " + json.dumps(results))
+# (collect rolls out in a spawned process, which imports this script again: the guard)
+if __name__ == "__main__":
+    results = {}
+    if phase == "full":
+        results["collect"] = run("collect", "--source", "script", "--task", "NeedleReach", "--num-episodes", "500",
+                                 "--max-steps", "15", "--keep-failures", "--out", str(root))
+        side = json.loads((root / "meta" / "surrol_data.json").read_text())
+        durable = int(side["checkpoint"]["episodes"])
+        results["recorded"] = durable + len([i for i, _ in journal.entries(root) if i >= durable])
+        results["info"] = run("info", str(root))
+        results["repair"] = run("repair", str(root))
+    else:
+        results["repair"] = run("repair", str(root))
+        results["validate"] = run("validate", str(root), "--no-lerobot", "--no-reward")
+        from surrol_data.datasets.reader import DatasetReader
+        results["episodes"] = len(DatasetReader(root))
+    print("RESULTS " + json.dumps(results))
 """
 
 

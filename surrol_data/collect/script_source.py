@@ -124,7 +124,13 @@ _WORKER: dict = {}   # in a --workers process: its env and policy
 
 
 def _start_worker(eid: str, env_kwargs: dict, make_kwargs: dict, speed: float) -> None:
+    import signal
+
     import surrol_data.envs  # noqa: F401  (registers the ids)
+
+    # Ctrl-C reaches the whole process group: the recording process alone decides what is kept and stops the workers
+    # (a worker killed by it mid-rollout would turn the user's Ctrl-C into a BrokenProcessPool traceback).
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
     env = make_env(eid, env_kwargs, **make_kwargs)
     _WORKER.update(env=env, policy=ORACLE if speed == 1.0 else PacedOracle(env, speed))
@@ -145,7 +151,7 @@ def collect_script(task: str, episodes: int, out: str | Path, seed: int | None =
                    keep_failures: bool = False, append: bool = False, max_attempts: int | None = None,
                    progress: bool = True, command: str | None = None,
                    camera_size: tuple[int, int] | None = None, speed: float = 1.0,
-                   seed_stride: int = 1, workers: int = 1,
+                   seed_stride: int = 1, workers: int = 0,
                    camera_renderer: str = DEFAULT_CAMERA_RENDERER) -> CollectResult:
     """Record ``episodes`` oracle episodes of ``task`` into the LeRobot dataset at ``out``.
 
@@ -156,15 +162,19 @@ def collect_script(task: str, episodes: int, out: str | Path, seed: int | None =
     ``camera_size`` = (width, height) also records the endoscope view as video, drawn by ``camera_renderer``
     (recorded in the sidecar; every worker draws with it too).
     ``speed`` < 1 runs the oracle at that fraction of its pace (:class:`PacedOracle`; recorded in provenance).
-    ``workers`` > 1 rolls the episodes out in that many processes while this one records them, in the same seed
-    order: the same dataset as ``workers=1`` (:func:`surrol_data.collect.parallel_rollouts.ordered_rollouts`).
+    ``workers=0`` rolls the episodes out in this process; ``workers`` ≥ 1 in that many spawned processes while this
+    one records them, in seed order: the same dataset whatever the number
+    (:func:`surrol_data.collect.parallel_rollouts.ordered_rollouts`). One worker already overlaps the rollouts
+    with the recording (writing, lerobot's import, the dataset's creation): ``collect``'s default. Spawned
+    processes import the caller's ``__main__``: a script that sets ``workers`` needs the
+    ``if __name__ == "__main__":`` guard.
     """
     if episodes <= 0:
         raise ValueError(f"the number of episodes must be positive, got {episodes}")
     if seed_stride < 1:
         raise ValueError(f"the seed stride must be at least 1, got {seed_stride}")
-    if workers < 1:
-        raise ValueError(f"the number of workers must be at least 1, got {workers}")
+    if workers < 0:
+        raise ValueError(f"the number of workers must be 0 (this process) or more, got {workers}")
     seed = first_seed(out, append, seed, "script")
     import surrol_data.envs  # noqa: F401  (registers the ids)
 
@@ -182,7 +192,7 @@ def collect_script(task: str, episodes: int, out: str | Path, seed: int | None =
                                robot_type=dimension_names(env).robot_type, camera_renderer=camera_renderer)
     bar = tqdm(total=episodes, desc=f"collect {task_name} (script)", unit="ep", disable=not progress)
     seeds = (seed + i * seed_stride for i in range(max_attempts))
-    if workers > 1:
+    if workers >= 1:
         from surrol_data.collect.parallel_rollouts import ordered_rollouts
 
         stream = ordered_rollouts(_start_worker, (eid, env_kwargs, kwargs, speed), _roll_in_worker,
@@ -204,7 +214,7 @@ def collect_script(task: str, episodes: int, out: str | Path, seed: int | None =
                 })
                 result.kept += 1
                 result.seeds.append(s)
-                if workers > 1 and result.kept == 1:
+                if workers >= 1 and result.kept == 1:
                     # From here on this process mostly waits for the workers' episodes: lerobot's import (the
                     # dataset is created at the first checkpoint) runs meanwhile, after the first episode.
                     recorder.import_lerobot_in_background()

@@ -12,6 +12,8 @@ import functools
 
 # Debian packages that provide EGL and Mesa's software OpenGL (named in errors and test skips).
 GL_PACKAGES = "libegl1 libegl-mesa0 libgl1-mesa-dri"
+# How an env's camera does without Panda3D, in the API's words; a command says it in its own (`in_words_of`).
+TINY_INSTEAD = ", or draw with TinyRenderer (camera_renderer='tiny')"
 
 _PRC = """
 audio-library-name null
@@ -24,6 +26,11 @@ textures-power-2 none
 framebuffer-multisample true
 multisamples 4
 """
+
+
+def in_words_of(message: str, instead: str) -> str:
+    """``message`` with the API's way around Panda3D replaced by a command's (``""``: a command that has none)."""
+    return message.replace(TINY_INSTEAD, instead)
 
 
 class RendererUnavailable(RuntimeError):
@@ -48,8 +55,7 @@ def offscreen_pipe():
     if pipe is None or not pipe.is_valid():
         raise RendererUnavailable(
             "Panda3D found no EGL/OpenGL to render offscreen; install the system packages "
-            f"`apt-get install {GL_PACKAGES}` (Mesa's software GL works without a GPU), or use "
-            "camera_renderer='tiny'")
+            f"`apt-get install {GL_PACKAGES}` (Mesa's software GL works without a GPU){TINY_INSTEAD}")
     return pipe
 
 
@@ -65,7 +71,7 @@ def unavailable_reason() -> str | None:
                                     WindowProperties.size(8, 8), GraphicsPipe.BF_refuse_window)
         if buffer is None:
             raise RendererUnavailable(f"Panda3D could not open an offscreen OpenGL buffer through EGL; install "
-                                      f"`apt-get install {GL_PACKAGES}`, or use camera_renderer='tiny'")
+                                      f"`apt-get install {GL_PACKAGES}`{TINY_INSTEAD}")
         engine.remove_all_windows()
     except (RendererUnavailable, ImportError) as e:
         return str(e)

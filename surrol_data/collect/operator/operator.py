@@ -412,7 +412,6 @@ class SimulatedOperator(Device):
     def _decide(self, t: float) -> None:
         """Look at the scene and choose the next action; sets when to look again."""
         self._next_decision_s = t + self._period
-        p = self.params
         while not self._idle:
             waits_on = self._team or self._gate
             if waits_on is not None and not waits_on.may_start(self, self._index):
