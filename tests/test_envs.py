@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 
 import surrol_data.envs  # noqa: F401  (registers the ids)
 from surrol_data.envs import kinematics as kin
-from surrol_data.envs import objects, physics
+from surrol_data.envs import physics
 from surrol_data.envs.psm import JAW_JOINTS
 from surrol_data.envs.psm_env import tool_down
 from surrol_data.envs.units import CONTROL_PERIOD_S, SCALING

@@ -8,7 +8,6 @@ the DDPG+BC+HER trainer through the Hydra app.
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest

@@ -15,7 +15,7 @@ from surrol_data.collect.operator import MATCHED_PROFILES, PROFILES, operator_pa
 from surrol_data.collect.script_source import SCRIPT_SPEED_MATCHED, PacedOracle
 from surrol_data.datasets.metrics import trajectory_proficiency
 from surrol_data.evaluation.rollout import ORACLE, rollout
-from surrol_data.study import StudySpec, load_spec
+from surrol_data.study import load_spec
 
 
 def test_matched_profiles_are_the_same_people_at_another_pace():

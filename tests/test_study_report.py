@@ -1,11 +1,7 @@
 """The Table I study report on real (tiny) training runs: files, table layout, self-contained HTML."""
 
-import json
-import math
-import re
 import shutil
 import subprocess
-from pathlib import Path
 
 import pytest
 

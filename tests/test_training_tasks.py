@@ -10,7 +10,6 @@ import surrol_data.envs  # noqa: F401  (registers the ids)
 from surrol_data.envs import drawer as dr
 from surrol_data.envs import jacks, physics
 from surrol_data.envs import match_board as mb
-from surrol_data.envs.units import SCALING
 
 from oracle_episode import assert_same_episode, run_oracle, task_env_fixture
 

@@ -45,7 +45,7 @@ class LerobotPolicy:
 
     def __init__(self, path: str | Path, device: str | None = None):
         import torch
-        from lerobot.configs import FeatureType, PreTrainedConfig
+        from lerobot.configs import PreTrainedConfig
         from lerobot.policies.factory import get_policy_class, make_pre_post_processors
 
         from surrol_data.datasets.lerobot_compat import check_lerobot
