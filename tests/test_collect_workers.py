@@ -53,10 +53,7 @@ def test_workers_need_the_script_source(tmp_path):
     assert result.exit_code == 2 and "--workers" in result.output and "Traceback" not in result.output
 
 
-def test_ctrl_c_keeps_the_finished_episodes_and_says_so(tmp_path):
-    """Ctrl-C reaches the whole process group (the recorder and its rollout worker): the command ends with what the
-    dataset holds and how to go on, no traceback; every episode finished before it is readable; no worker is left."""
-    out = tmp_path / "stopped"
+def _collect_until_two_episodes_are_durable(out: Path) -> subprocess.Popen:
     proc = subprocess.Popen([sys.executable, "-m", "surrol_data.cli", "collect", "--source", "script", "--task",
                              "NeedleReach", "--num-episodes", "10000", "--out", str(out)],
                             cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -65,6 +62,19 @@ def test_ctrl_c_keeps_the_finished_episodes_and_says_so(tmp_path):
     while len(list(journal_dir(out).glob("episode_*.npz"))) < 2 and not (out / "data").is_dir():
         assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()[1][-3000:]
         time.sleep(0.1)
+    return proc
+
+
+def _alive_in_group(pgid: int) -> list[str]:
+    group = subprocess.run(["ps", "-o", "stat=,args=", "-g", str(pgid)], capture_output=True, text=True).stdout
+    return [line for line in group.splitlines() if not line.lstrip().startswith("Z")]   # zombies have exited
+
+
+def test_ctrl_c_keeps_the_finished_episodes_and_says_so(tmp_path):
+    """Ctrl-C reaches the whole process group (the recorder and its rollout worker): the command ends with what the
+    dataset holds and how to go on, no traceback; every episode finished before it is readable; no worker is left."""
+    out = tmp_path / "stopped"
+    proc = _collect_until_two_episodes_are_durable(out)
     os.killpg(proc.pid, signal.SIGINT)   # what a terminal does on Ctrl-C
     _, err = proc.communicate(timeout=300)
     assert proc.returncode == 130, err[-3000:]
@@ -72,6 +82,16 @@ def test_ctrl_c_keeps_the_finished_episodes_and_says_so(tmp_path):
     held = int(re.search(r"holds (\d+) episodes", err).group(1))
     assert held >= 2 and len(DatasetReader(out)) == held
     assert "--append" in err
-    group = subprocess.run(["ps", "-o", "stat=,args=", "-g", str(proc.pid)], capture_output=True, text=True).stdout
-    alive = [line for line in group.splitlines() if not line.lstrip().startswith("Z")]   # zombies have exited
-    assert not alive, alive   # the rollout worker is gone too
+    assert not _alive_in_group(proc.pid)   # the rollout worker is gone too
+
+
+def test_a_killed_recorder_leaves_no_worker_behind(tmp_path):
+    """SIGKILL (or the OOM killer) ends the recording process alone: its rollout worker, idle on its task queue,
+    must not live on holding a simulator."""
+    proc = _collect_until_two_episodes_are_durable(tmp_path / "killed")
+    proc.kill()
+    proc.communicate(timeout=60)
+    deadline = time.monotonic() + 30
+    while _alive_in_group(proc.pid) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not _alive_in_group(proc.pid)

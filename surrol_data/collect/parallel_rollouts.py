@@ -8,13 +8,30 @@ whichever worker ran it — so the kept episodes, their seeds and their frames a
 
 Workers are spawned, not forked: the parent has a PyBullet connection open, which a fork would share.
 At most ``2 * workers`` rollouts are in flight, so those not needed once enough episodes are kept are few and are
-discarded.
+discarded. A worker whose recording process was killed (SIGKILL, the OOM killer) exits by itself: an idle worker
+waits on its task queue forever, each one holding a simulator.
 """
 
 from __future__ import annotations
 
+import os
+import threading
+import time
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
+
+_PARENT_POLL_S = 0.5
+
+
+def _start_beside(parent: int, start: Callable, start_args: tuple) -> None:
+    """A worker's initializer: ``start(*start_args)``, and a thread that ends the worker once ``parent`` is gone."""
+    def exit_with_parent() -> None:
+        while os.getppid() == parent:
+            time.sleep(_PARENT_POLL_S)
+        os._exit(1)   # nobody is left to take the rollouts
+
+    threading.Thread(target=exit_with_parent, name="surrol_data-exit-with-parent", daemon=True).start()
+    start(*start_args)
 
 
 def ordered_rollouts(start: Callable, start_args: tuple, roll: Callable, seeds: Iterable[int],
@@ -26,7 +43,7 @@ def ordered_rollouts(start: Callable, start_args: tuple, roll: Callable, seeds: 
     from concurrent.futures import ProcessPoolExecutor
 
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                               initializer=start, initargs=start_args)
+                               initializer=_start_beside, initargs=(os.getpid(), start, start_args))
     pending: deque = deque()
     try:
         for seed in seeds:
