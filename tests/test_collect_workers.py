@@ -53,13 +53,15 @@ def test_workers_need_the_script_source(tmp_path):
     assert result.exit_code == 2 and "--workers" in result.output and "Traceback" not in result.output
 
 
-def _collect_until_two_episodes_are_durable(out: Path) -> subprocess.Popen:
+def _collect_until_two_episodes_are_durable(out: Path, *more: str) -> subprocess.Popen:
+    """``collect`` (``more``: further options) started in its own process group, once two episodes are durable (in a
+    journal: the dataset's, or a shard's beside it)."""
     proc = subprocess.Popen([sys.executable, "-m", "surrol_data.cli", "collect", "--source", "script", "--task",
-                             "NeedleReach", "--num-episodes", "10000", "--out", str(out)],
+                             "NeedleReach", "--num-episodes", "10000", "--out", str(out), *more],
                             cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             start_new_session=True)
     deadline = time.monotonic() + 300
-    while len(list(journal_dir(out).glob("episode_*.npz"))) < 2 and not (out / "data").is_dir():
+    while len(list(out.parent.rglob(f"{journal_dir('').name}/episode_*.npz"))) < 2:
         assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()[1][-3000:]
         time.sleep(0.1)
     return proc
@@ -85,10 +87,11 @@ def test_ctrl_c_keeps_the_finished_episodes_and_says_so(tmp_path):
     assert not _alive_in_group(proc.pid)   # the rollout worker is gone too
 
 
-def test_a_killed_recorder_leaves_no_worker_behind(tmp_path):
-    """SIGKILL (or the OOM killer) ends the recording process alone: its rollout worker, idle on its task queue,
-    must not live on holding a simulator."""
-    proc = _collect_until_two_episodes_are_durable(tmp_path / "killed")
+@pytest.mark.parametrize("parallel", [[], ["--shards", "2"]], ids=["worker", "shards"])
+def test_a_killed_recorder_leaves_no_worker_behind(tmp_path, parallel):
+    """SIGKILL (or the OOM killer) ends the command's process alone: its rollout worker (idle on its task queue) or
+    its shard processes must not live on, each holding a simulator."""
+    proc = _collect_until_two_episodes_are_durable(tmp_path / "killed", *parallel)
     proc.kill()
     proc.communicate(timeout=60)
     deadline = time.monotonic() + 30

@@ -23,14 +23,19 @@ from collections.abc import Callable, Iterable, Iterator
 _PARENT_POLL_S = 0.5
 
 
-def _start_beside(parent: int, start: Callable, start_args: tuple) -> None:
-    """A worker's initializer: ``start(*start_args)``, and a thread that ends the worker once ``parent`` is gone."""
-    def exit_with_parent() -> None:
+def exit_with(parent: int) -> None:
+    """A pool worker's initializer: a thread that ends this process once ``parent`` is gone (a pool's worker waits on
+    its task queue forever otherwise: the queue's pipe never closes, the worker holds both of its ends)."""
+    def watch() -> None:
         while os.getppid() == parent:
             time.sleep(_PARENT_POLL_S)
-        os._exit(1)   # nobody is left to take the rollouts
+        os._exit(1)   # nobody is left to take what this process makes
 
-    threading.Thread(target=exit_with_parent, name="surrol_data-exit-with-parent", daemon=True).start()
+    threading.Thread(target=watch, name="surrol_data-exit-with-parent", daemon=True).start()
+
+
+def _start_beside(parent: int, start: Callable, start_args: tuple) -> None:
+    exit_with(parent)
     start(*start_args)
 
 

@@ -23,6 +23,7 @@ from pathlib import Path
 
 from tqdm.auto import tqdm
 
+from surrol_data.collect.parallel_rollouts import exit_with
 from surrol_data.collect.script_source import collect_script
 from surrol_data.slurm import SlurmOptions, submit_array, wait_for
 
@@ -96,7 +97,8 @@ def collect_script_shards(task: str, episodes: int, out: str | Path, shards: int
 
 def _locally(items: list[tuple], progress: bool, say) -> None:
     """One worker process per shard, at most one per core; a shard that fails is said and left for the check."""
-    with ProcessPoolExecutor(max_workers=min(len(items), os.cpu_count() or 1), mp_context=get_context("spawn")) as pool:
+    with ProcessPoolExecutor(max_workers=min(len(items), os.cpu_count() or 1), mp_context=get_context("spawn"),
+                             initializer=exit_with, initargs=(os.getpid(),)) as pool:   # a killed parent ends them
         futures = {pool.submit(record_shard, *item): Path(item[2]).name for item in items}
         with tqdm(total=sum(item[1] for item in items), desc=f"collect {items[0][0]} (script, shards)", unit="ep",
                   disable=not progress) as bar:
