@@ -278,11 +278,15 @@ def _run_cells_in_parallel(out: Path, spec: InterventionSpec, cells: list, done:
     """The cells in ``workers`` processes. Cells share nothing but ``results.jsonl``, to which each appends whole
     lines (one write each, so lines never interleave); a cell's rows do not depend on which process ran it."""
     import multiprocessing
+    import os
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    # spawn: the workers start clean (no PyBullet client or torch threads inherited from this process)
-    with ProcessPoolExecutor(max_workers=min(workers, len(cells)),
-                             mp_context=multiprocessing.get_context("spawn")) as pool:
+    from surrol_data.collect.parallel_rollouts import exit_with
+
+    # spawn: the workers start clean (no PyBullet client or torch threads inherited from this process); exit_with: a
+    # killed run leaves no worker appending to results.jsonl beside the run that resumes it
+    with ProcessPoolExecutor(max_workers=min(workers, len(cells)), mp_context=multiprocessing.get_context("spawn"),
+                             initializer=exit_with, initargs=(os.getpid(),)) as pool:
         futures = {pool.submit(_run_cell, out, spec, task, seed, done): (task, seed) for task, seed in cells}
         for future in as_completed(futures):
             future.result()     # a failed cell fails the run (finished rows stay in results.jsonl)
