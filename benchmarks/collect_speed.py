@@ -13,10 +13,10 @@ Each side runs in a fresh Python process, started by this one, so both pay their
 
 Per side: start-up (process start to the first episode done), the median seconds per episode after it, and the
 episodes/s after start-up (episodes 2..N over the time from the first to the last). The ratio is collect's
-episodes/s over the env's (the issue's target ≥ 0.8). A state-only ``collect`` creates its LeRobot dataset (and
-imports lerobot, ~5 s) at its first checkpoint, after start-up: with ``--workers 1`` that one-time cost falls
-inside the "after start-up" window, so the table also gives the time to all N durable episodes, start-up
-included, against the env alone's. Also the wall time of ``surrol-data --help`` (target ≤ 1 s).
+episodes/s over the env's (the issue's target ≥ 0.8). A state-only ``collect`` imports lerobot (~5 s) and creates
+its LeRobot dataset after start-up, in the recording process while the workers roll out; the table also gives the
+time to all N durable episodes, start-up included, against the env alone's, which counts every one-time cost.
+Also the wall time of ``surrol-data --help`` (target ≤ 1 s).
 """
 
 from __future__ import annotations

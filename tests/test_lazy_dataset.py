@@ -252,3 +252,59 @@ def test_lerobot_imported_in_the_background_while_recording(tmp_path):
     for rel in rels:   # (the two checkpoints' files, consolidated when the recording finished)
         assert pq.read_table(root / rel).equals(pq.read_table(whole / rel)), rel
     assert len(DatasetReader(root)) == 12
+
+
+DEFERRING = textwrap.dedent("""
+    import json, os, signal, sys
+    sys.path.insert(0, {tests!r})
+    from test_recorder import make_traj, provenance, RECORDER_ARGS, OBS, GOAL
+    from surrol_data.datasets import lerobot_compat
+    from surrol_data.datasets.recorder import DatasetRecorder
+    from surrol_data.datasets.schema import frame_features
+
+    lerobot_compat.background_import_running = lambda: True   # lerobot's import "takes" the whole recording
+    with DatasetRecorder({root!r}, features=frame_features(OBS, GOAL, 5, 1), command="recorded by the test",
+                         **RECORDER_ARGS) as rec:
+        for i in range({episodes}):
+            rec.record(make_traj(i, {steps}), provenance(i))
+        print(json.dumps({{"data": os.path.isdir(os.path.join({root!r}, "data")),
+                           "journal": len(os.listdir(os.path.join({root!r}, ".surrol_data_journal")))}}), flush=True)
+        if {kill}:
+            os.kill(os.getpid(), signal.SIGKILL)
+""")
+
+
+@pytest.mark.parametrize("kill", [False, True], ids=["closed", "sigkilled"])
+def test_creation_waits_for_a_background_import_and_changes_no_file(tmp_path, kill):
+    """While lerobot is imported in the background (`collect`'s rollout workers go on meanwhile), the dataset is not
+    created at the 10th episode's checkpoint, which would wait for the import: episodes stay in the journal (durable)
+    and in memory. Created later, with a checkpoint where an eager open made each, the files are those of a recording
+    that never waited; a SIGKILL meanwhile loses none of them (repair replays the journal)."""
+    root, episodes = tmp_path / "deferred", 23
+    script = tmp_path / "child.py"
+    script.write_text(DEFERRING.format(tests=str(Path(__file__).parent), root=str(root), steps=STEPS,
+                                       episodes=episodes, kill=kill))
+    run = subprocess.run([sys.executable, str(script)], cwd=REPO_ROOT, capture_output=True, text=True, timeout=600)
+    assert run.returncode == (-signal.SIGKILL if kill else 0), run.stderr[-3000:]
+    assert json.loads(run.stdout.splitlines()[0]) == {"data": False, "journal": episodes}
+    if kill:
+        assert repair(root).episodes_kept == episodes
+    whole = tmp_path / "whole"
+    with DatasetRecorder(whole, features=frame_features(OBS, GOAL, 5, 1), command="recorded by the test",
+                         **RECORDER_ARGS) as rec:
+        for i in range(episodes):
+            rec.record(make_traj(i, STEPS), provenance(i))
+    rels = sorted(p.relative_to(whole).as_posix() for p in whole.rglob("*.parquet"))
+    assert rels == sorted(p.relative_to(root).as_posix() for p in root.rglob("*.parquet"))
+    clock = ["provenance/recorded_at", "provenance/duration_s", "seal/provenance"]   # when, not what
+    for rel in rels:
+        if kill and rel.startswith("meta/episodes"):
+            continue   # repair writes the replayed episodes' rows itself (checked below through the reader)
+        ours, theirs = (pq.ParquetFile(r / rel) for r in (root, whole))
+        assert ours.metadata.num_row_groups == theirs.metadata.num_row_groups, rel
+        assert ours.read().drop_columns([c for c in clock if c in ours.schema_arrow.names]).equals(
+            theirs.read().drop_columns([c for c in clock if c in theirs.schema_arrow.names])), rel
+    deferred, eager = (DatasetReader(r).episodes.drop(columns=["recorded_at", "git_commit", "duration_s"])
+                       for r in (root, whole))
+    assert deferred.equals(eager)
+    assert not journal.entries(root)

@@ -86,6 +86,23 @@ def test_the_natural_study_run_count_and_figures(section):
     for epoch in (50, 100):
         said = " / ".join(_mean_std(est[epoch]["success_rate"][s], 100) for s in SOURCES)
         assert f"epoch {epoch}: {said} %" in flat, epoch
+    natural = flat.split("natural-pace study", 1)[1]
     for source in SOURCES:
         firsts = [_first_at_90(r) for r in sorted(runs, key=lambda r: r.seed) if r.source == source]
-        assert f"{_listed(firsts)} for the {source}-trained" in flat.split("natural-pace study", 1)[1], source
+        assert f"{_listed(firsts)} for the {source}-trained" in natural, source
+    demos = (ROOT / "docs" / "results" / "table1_natural" / "demos.md").read_text()
+    steps = {m.group(1): m.group(2) for m in re.finditer(r"^\| (\w+) \| \d+ \| ([\d.]+) \|", demos, re.M)}
+    said = ", ".join(f"{source} {steps[source]}" for source in SOURCES)
+    assert f"demos of {said} steps" in natural, said
+    first = {s: np.mean([int(_first_at_90(r)) for r in runs if r.source == s]) for s in SOURCES}
+    means = ", ".join(f"{first[s]:.1f}" for s in SOURCES[:2]) + f" and {first['expert']:.1f}"
+    assert f"(means {means})" in natural
+    if "the shorter the demos, the sooner the policy reaches 90 %: script first, then expert, then novice" in natural:
+        assert float(steps["script"]) < float(steps["expert"]) < float(steps["novice"]), steps
+        assert first["script"] < first["expert"] < first["novice"], first
+    if "The expert-trained lead the novice-trained at epochs 50 and 100" in natural:
+        assert all(est[e]["success_rate"]["expert"].mean > est[e]["success_rate"]["novice"].mean for e in (50, 100))
+    at_100 = [r.rows[-1]["success_rate"] for r in runs if r.source == "novice" and r.rows[-1]["epoch"] == 100]
+    below = [v for v in at_100 if v < 0.9]
+    if "one novice-trained seed has fallen back to" in natural:
+        assert len(below) == 1 and f"fallen back to {below[0] * 100:.0f} % at epoch 100" in natural, at_100

@@ -7,8 +7,9 @@ whichever worker ran it — so the kept episodes, their seeds and their frames a
 (each rollout starts from ``env.reset(seed=...)``, the same call the single process makes).
 
 Workers are spawned, not forked: the parent has a PyBullet connection open, which a fork would share.
-At most ``2 * workers`` rollouts are in flight, so those not needed once enough episodes are kept are few and are
-discarded. A worker whose recording process was killed (SIGKILL, the OOM killer) exits by itself: an idle worker
+At most ``ahead`` rollouts (at least ``2 * workers``) are asked for before their results are taken: enough that the
+workers go on while the recorder is busy for a while (creating its dataset), few enough that their results fit in
+memory; those asked for when enough episodes are kept are cancelled or discarded. A worker whose recording process was killed (SIGKILL, the OOM killer) exits by itself: an idle worker
 waits on its task queue forever, each one holding a simulator.
 """
 
@@ -40,7 +41,7 @@ def _start_beside(parent: int, start: Callable, start_args: tuple) -> None:
 
 
 def ordered_rollouts(start: Callable, start_args: tuple, roll: Callable, seeds: Iterable[int],
-                     workers: int) -> Iterator[tuple]:
+                     workers: int, ahead: int = 0) -> Iterator[tuple]:
     """``(seed, *roll(seed))`` for each seed, in order, computed by ``workers`` spawned processes that each ran
     ``start(*start_args)`` first (both module-level functions, so a spawned process can import them). Stop iterating
     whenever enough is done: closing the iterator shuts the processes down."""
@@ -53,7 +54,7 @@ def ordered_rollouts(start: Callable, start_args: tuple, roll: Callable, seeds: 
     try:
         for seed in seeds:
             pending.append((seed, pool.submit(roll, seed)))
-            if len(pending) >= 2 * workers:
+            if len(pending) >= max(ahead, 2 * workers):
                 done_seed, future = pending.popleft()
                 yield done_seed, *future.result()
         while pending:

@@ -143,6 +143,8 @@ def _roll_in_worker(seed: int) -> tuple:
     return traj, time.perf_counter() - t0
 
 
+ROLLOUTS_AHEAD = 64   # state-only rollouts asked of the workers before the recorder takes their results
+
 # The script pace that matches the paper's script demos (NeedlePick, 150-step horizon: 109 steps, 11.7 cm).
 SCRIPT_SPEED_MATCHED = 0.3
 
@@ -195,8 +197,10 @@ def collect_script(task: str, episodes: int, out: str | Path, seed: int | None =
     if workers >= 1:
         from surrol_data.collect.parallel_rollouts import ordered_rollouts
 
+        # A state-only episode is small: the workers may run far ahead of a recorder that is creating its dataset
+        # (MAX_UNSAVED_WHILE_IMPORTING episodes at once, ~1 s); camera episodes (MBs each) stay close.
         stream = ordered_rollouts(_start_worker, (eid, env_kwargs, kwargs, speed), _roll_in_worker,
-                                  seeds, workers)
+                                  seeds, workers, ahead=ROLLOUTS_AHEAD if camera_size is None else 0)
     else:
         stream = _rollouts_here(env, policy, seeds)
     try:

@@ -204,6 +204,10 @@ def import_in_background() -> None:
     _background_import.start()
 
 
+def background_import_running() -> bool:
+    return _background_import is not None and _background_import.is_alive()
+
+
 def wait_for_background_import() -> None:
     """Join the thread :func:`import_in_background` started (if any), so that no two threads import lerobot at once."""
     if _background_import is not None:

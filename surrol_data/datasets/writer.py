@@ -133,6 +133,9 @@ ROBOT_TYPE = "dvrk_psm"  # the default; collectors pass surrol_data.envs.names.d
 VIDEO_BACKEND = "pyav"  # explicit: avoids torchcodec probing (and its 60-line warning without system ffmpeg)
 REPAIR_DIR = ".surrol_data_repair"
 MAX_UNSAVED = 10   # episodes a lazy open holds in memory at most before it creates the LeRobot dataset
+# ... while lerobot is imported in the background (import_lerobot_in_background): creating the dataset would wait
+# for the import, and the rollout workers for the recorder. A state-only episode is small (~40 KB at 150 steps).
+MAX_UNSAVED_WHILE_IMPORTING = 500
 
 
 def _lerobot_dataset_class():
@@ -361,7 +364,9 @@ class DatasetWriter:
         self._install_signal_handlers()
 
     def _create_dataset(self) -> None:
-        """Create the LeRobot dataset of a lazy open and save the episodes recorded so far into it."""
+        """Create the LeRobot dataset of a lazy open and save the episodes recorded so far into it, checkpointing
+        after every ``checkpoint_every`` of them but the last: where an eager open checkpointed, so the same files
+        (the caller checkpoints the last ones if they are due)."""
         lerobot_compat.wait_for_background_import()   # see import_lerobot_in_background
         if self.fast_save:
             lerobot_compat.install_fast_save()
@@ -370,10 +375,21 @@ class DatasetWriter:
                                                      robot_type=self.robot_type, use_videos=True,
                                                      video_backend=VIDEO_BACKEND, metadata_buffer_size=1)
         self._prepare_writer()
+        saved = 0
         while self._unsaved:
+            if saved and saved % self.checkpoint_every == 0:
+                self._close_files_and_continue()
             episode_data, columns = self._unsaved[0]
             self._save(episode_data, columns)
             self._unsaved.pop(0)
+            saved += 1
+        self._since_checkpoint = (saved - 1) % self.checkpoint_every + 1 if saved else 0
+
+    def _deferring_creation(self) -> bool:
+        """A lazy open whose lerobot is still being imported in the background, with room to hold more episodes:
+        creating the dataset now would only wait for the import. The journal keeps every episode durable."""
+        return (self._ds is None and lerobot_compat.background_import_running()
+                and len(self._unsaved) < MAX_UNSAVED_WHILE_IMPORTING)
 
     def import_lerobot_in_background(self) -> None:
         """For a caller whose main thread waits from now on (on worker processes): import lerobot meanwhile in a
@@ -541,7 +557,8 @@ class DatasetWriter:
                 columns[PROVENANCE_SEAL] = provenance_seal(prov)
             if ds is None:   # opened lazily: saved into the dataset when the first checkpoint creates it
                 self._unsaved.append((episode_data, columns))
-                if len(self._unsaved) >= MAX_UNSAVED:
+                self._since_checkpoint += 1
+                if len(self._unsaved) >= MAX_UNSAVED and not self._deferring_creation():
                     self._create_dataset()   # memory stays bounded, whatever checkpoint_every is
             else:
                 try:
@@ -549,11 +566,11 @@ class DatasetWriter:
                 except BaseException:
                     journal.entry_path(self.root, episode_index).unlink(missing_ok=True)  # not recorded after all
                     raise
+                self._since_checkpoint += 1
             self._session["episodes"] = self._session.get("episodes", 0) + 1
-            self._since_checkpoint += 1
             due_by_time = (self.checkpoint_interval_s is not None
                            and time.monotonic() - self._last_checkpoint_t >= self.checkpoint_interval_s)
-            if self._since_checkpoint >= self.checkpoint_every or due_by_time:
+            if (self._since_checkpoint >= self.checkpoint_every or due_by_time) and not self._deferring_creation():
                 self.checkpoint()
         return episode_index
 
@@ -573,18 +590,21 @@ class DatasetWriter:
         with self._hold_signals():
             if self._ds is None:
                 self._create_dataset()
-            lerobot_compat.write_episode_totals(self._ds)
-            if not lerobot_compat.close_files_and_continue(self._ds):
-                self._ds.finalize()
-                with hub_offline():
-                    self._ds = _lerobot_dataset_class().resume(self.repo_id, root=lerobot_root(self.root),
-                                                               video_backend=VIDEO_BACKEND)
-                self._prepare_writer()
-            self._durable = self._ds.meta.total_episodes
-            self._since_checkpoint = 0
-            self._last_checkpoint_t = time.monotonic()
-            self._write_sidecar(checkpoint=True)
-            journal.drop_below(self.root, self._durable)
+            self._close_files_and_continue()
+
+    def _close_files_and_continue(self) -> None:
+        lerobot_compat.write_episode_totals(self._ds)
+        if not lerobot_compat.close_files_and_continue(self._ds):
+            self._ds.finalize()
+            with hub_offline():
+                self._ds = _lerobot_dataset_class().resume(self.repo_id, root=lerobot_root(self.root),
+                                                           video_backend=VIDEO_BACKEND)
+            self._prepare_writer()
+        self._durable = self._ds.meta.total_episodes
+        self._since_checkpoint = 0
+        self._last_checkpoint_t = time.monotonic()
+        self._write_sidecar(checkpoint=True)
+        journal.drop_below(self.root, self._durable)
 
     def _episode_buffer(self, frames: dict[str, np.ndarray], T: int, episode_index: int) -> dict:
         return lerobot_compat.episode_buffer(frames, T, episode_index, self.task_description, FPS)
