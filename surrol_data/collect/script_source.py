@@ -219,8 +219,8 @@ def collect_script(task: str, episodes: int, out: str | Path, seed: int | None =
                 result.kept += 1
                 result.seeds.append(s)
                 if workers >= 1 and result.kept == 1:
-                    # From here on this process mostly waits for the workers' episodes: lerobot's import (the
-                    # dataset is created at the first checkpoint) runs meanwhile, after the first episode.
+                    # From here on this process mostly waits for the workers' episodes: lerobot's import runs
+                    # meanwhile, and the recorder creates the dataset once it is done (episodes journalled till then).
                     recorder.import_lerobot_in_background()
                 bar.update(1)
                 bar.set_postfix(success=f"{result.success_rate:.2f}", refresh=False)

@@ -5,7 +5,8 @@ recorder only closes files at checkpoints (closing every episode would cost a pa
 episode). Between checkpoints, each finished episode is also written here as one small ``.npz`` — the exact
 :class:`Trajectory` arrays and the normalized provenance — by write-to-temp + ``os.replace``, so a kill
 leaves either the whole entry or none. A checkpoint makes the episodes durable in the dataset's own files
-and deletes their entries, so the journal never holds more than ``checkpoint_every`` files.
+and deletes their entries, so the journal holds about ``checkpoint_every`` files (up to
+``MAX_UNSAVED_WHILE_IMPORTING`` of a new dataset while lerobot is imported in the background).
 :func:`surrol_data.datasets.repair.repair` replays the entries a hard kill left behind.
 
 Measured by ``benchmarks/dataset_io.py`` (the write speed with the journal on) and

@@ -36,7 +36,11 @@ Durability — what survives how the process ends:
 Start-up: a new state-only dataset is opened without lerobot (whose import, torch included, cost ~5 s before the
 first episode): the folder, the lock and the sidecar (with the features, ``pending_dataset``) are made at open, the
 episodes are journalled as always and held in memory, and the first checkpoint (or ``close``) creates the LeRobot
-dataset and saves them in order — the same calls as an eager open, so the same files. A SIGKILL before then leaves
+dataset and saves them in order — the same calls as an eager open, so the same files. A caller whose rollouts run in
+other processes imports lerobot in a thread meanwhile (:meth:`DatasetRecorder.import_lerobot_in_background`); the
+checkpoints then wait for that import to end (up to ``MAX_UNSAVED_WHILE_IMPORTING`` episodes, all in the journal)
+instead of the recording waiting for it, and the dataset is created with a checkpoint after every
+``checkpoint_every`` episodes, where an eager open made them. A SIGKILL before then leaves
 the journal and the sidecar; :func:`surrol_data.datasets.repair.repair` creates the dataset from the sidecar's
 features and replays the journal. Camera datasets, appends and ``lazy=False`` create or resume at open.
 
