@@ -32,7 +32,7 @@ if __name__ == "__main__":
         results["collect"] = run("collect", "--source", "script", "--task", "NeedleReach", "--num-episodes", "500",
                                  "--max-steps", "15", "--keep-failures", "--out", str(root))
         side = json.loads((root / "meta" / "surrol_data.json").read_text())
-        durable = int(side["checkpoint"]["episodes"])
+        durable = int(side.get("checkpoint", {}).get("episodes", 0))   # none: the dataset was still to be created
         results["recorded"] = durable + len([i for i, _ in journal.entries(root) if i >= durable])
         results["info"] = run("info", str(root))
         results["repair"] = run("repair", str(root))
