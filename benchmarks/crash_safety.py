@@ -105,7 +105,10 @@ def _child(args: list[str], report_fd: int, log: Path) -> None:
 
         DatasetRecorder.record = record_and_report
         try:
-            typer.main.get_command(app).main(args=args, prog_name="surrol-data", standalone_mode=False)
+            # Without standalone mode click *returns* the status of a command that ended by typer.Exit or Ctrl-C
+            # (130): an interrupted export is no success, whose output would count as "finished".
+            returned = typer.main.get_command(app).main(args=args, prog_name="surrol-data", standalone_mode=False)
+            code = returned if isinstance(returned, int) else 0
         except SystemExit as e:
             code = e.code if isinstance(e.code, int) else 1
         except KeyboardInterrupt:
