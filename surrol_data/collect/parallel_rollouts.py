@@ -9,8 +9,9 @@ whichever worker ran it — so the kept episodes, their seeds and their frames a
 Workers are spawned, not forked: the parent has a PyBullet connection open, which a fork would share.
 At most ``ahead`` rollouts (at least ``2 * workers``) are asked for before their results are taken: enough that the
 workers go on while the recorder is busy for a while (creating its dataset), few enough that their results fit in
-memory; those asked for when enough episodes are kept are cancelled or discarded. A worker whose recording process was killed (SIGKILL, the OOM killer) exits by itself: an idle worker
-waits on its task queue forever, each one holding a simulator.
+memory; those asked for when enough episodes are kept are cancelled or discarded. A worker whose recording process
+was killed (SIGKILL, the OOM killer) exits by itself: an idle worker waits on its task queue forever, each one
+holding a simulator.
 """
 
 from __future__ import annotations
