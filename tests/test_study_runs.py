@@ -109,7 +109,8 @@ def test_a_partial_study_commits_run_folders_and_a_report_marked_partial(partial
     assert runs == ["novice/seed0", "script/seed0"]            # the first two of the interleaved order
     assert not (out / ".work").exists()                          # checkpoints gone once the runs finished
     folder = out / "runs" / "script" / "seed0"
-    for name in ("metrics.csv", "metrics.jsonl", "eval_episodes.csv", "policy.pt", "config.yaml", "config.json"):
+    for name in ("metrics.csv", "metrics.jsonl", "eval_episodes.csv", "report_episodes.csv", "policy.pt",
+                 "config.yaml", "config.json"):
         assert (folder / name).is_file(), name
     record = json.loads((folder / "run.json").read_text())
     assert record["source"] == "script" and record["seed"] == 0 and record["epochs"] == 2
@@ -118,14 +119,37 @@ def test_a_partial_study_commits_run_folders_and_a_report_marked_partial(partial
     assert record["time"]["cpu_s"] > 0 and record["time"]["batched_members"] == 2
     episodes = pd.read_csv(folder / "eval_episodes.csv")
     assert sorted(episodes["epoch"].unique()) == [1, 2]          # the report epochs of table1_quick
-    assert {"final_success", "failed_grasps", "first_grasp_failed", "recovered"} <= set(episodes.columns)
+    assert {"final_success", "failed_grasps", "attempts", "retries", "attempt_outcome"} <= set(episodes.columns)
+    # the report epochs' kept actors on fresh episodes and under the probe (table1_quick: 2 of each per epoch)
+    report_eps = pd.read_csv(folder / "report_episodes.csv")
+    assert sorted(report_eps.groupby(["epoch", "kind"]).size().items()) == \
+        [((1, "eval"), 2), ((1, "probe"), 2), ((2, "eval"), 2), ((2, "probe"), 2)]
+    assert report_eps["seed"].min() >= 2_000_000_000                  # disjoint from demos, training, per-epoch eval
+    assert {"probed", "attempt_outcome", "steps_to_success"} <= set(report_eps.columns)
     report = (out / "report.md").read_text()
     assert "(partial)" in report and "stands on 2 of the study's 6 runs" in report
     assert "Missing: expert/0, script/1, novice/1, expert/1" in report
-    assert "## Recovery after a failed first grasp" in report
-    assert "A jaw closure is an open→close transition of the commanded jaw" in report   # what the counts mean
+    assert "Table I stands on epoch 1: 2 run(s) on their kept actor's evaluation of 2 fresh episodes" in report
+    assert report.count("| Steps to complete (successes only) |") == 2
+    assert report.count("| Steps to complete (failures at the horizon) |") == 2
+    assert "## Attempts and recovery" in report and "| First attempt held |" in report
+    assert "jaw flicker away from the needle is no attempt" in report   # what the counts mean
+    assert "## Induced failure: the first attempt made to fail" in report and "| First attempt disabled |" in report
+    assert "Not in the table" not in report      # every run has both records
     # the report names the command that rebuilds it, not the training command that last wrote it
     assert f"Report command: `surrol-data study table1_quick --out {out} --report`" in report
+
+
+def test_the_kept_actors_are_written_and_load(partial_study):
+    from surrol_data.algos.policies import load_policy
+
+    folder = partial_study / "runs" / "novice" / "seed0" / "actors"
+    assert sorted(p.name for p in folder.iterdir()) == ["epoch001.pt", "epoch002.pt"]   # table1_quick's 2 epochs
+    final = load_policy(partial_study / "runs" / "novice" / "seed0" / "policy.pt")
+    last = load_policy(folder / "epoch002.pt")
+    obs = {"observation": np.linspace(0, 1, 19, dtype=np.float32), "desired_goal": np.zeros(3, np.float32),
+           "achieved_goal": np.zeros(3, np.float32)}
+    np.testing.assert_array_equal(last(obs), final(obs))   # the last kept actor is the final one
 
 
 def test_the_final_policy_of_a_run_evaluates(partial_study):

@@ -49,9 +49,16 @@ from surrol_data.algos.replay import EpisodeReplay, rng_from_tensor, rng_state_t
 from surrol_data.algos.train import (CHECKPOINT_FORMAT, EVAL_SEED_BASE, LAUNCH_SETTINGS, TRAIN_SEED_STRIDE, RunLog,
                                      TrainConfig, _check, _config_json, _write_json, claim_run_dir, make_env)
 from surrol_data.datasets.trajectory import Trajectory
-from surrol_data.evaluation.metrics import first_grasp_failed, summarize, trajectory_proficiency
+from surrol_data.evaluation.episode_rows import episode_row
+from surrol_data.evaluation.metrics import summarize, trajectory_proficiency
 
 PREV = "checkpoint.prev.pt"
+ACTORS_DIR = "actors"   # the actor at chosen epochs (train_batched's actor_epochs), for evaluating them again
+
+
+def actor_path(run_dir: str | Path, epoch: int) -> Path:
+    """Where a run keeps its actor of ``epoch`` (a :class:`~surrol_data.algos.bc.BCPolicy`, like ``policy.pt``)."""
+    return Path(run_dir) / ACTORS_DIR / f"epoch{int(epoch):03d}.pt"
 
 
 EPISODES_FILE = "eval_episodes.csv"
@@ -119,11 +126,13 @@ class _Member:
 
 def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int = 2,
                   progress: bool = True, worker_nice: int = 0, widen_threads: bool = True,
-                  episode_epochs: tuple[int, ...] = ()) -> list[list[dict]]:
+                  episode_epochs: tuple[int, ...] = (), actor_epochs: tuple[int, ...] = ()) -> list[list[dict]]:
     """Train (or resume) the runs ``cfgs`` as one ensemble; returns every member's per-epoch rows.
 
     ``episode_epochs``: epochs whose evaluation episodes are also written one row each (success, steps, path,
-    failed grasps, whether a failed first grasp was recovered) to ``eval_episodes.csv`` in every run folder.
+    failed grasps, attempts, retries and the episode's attempt outcome: :mod:`surrol_data.datasets.attempts`) to
+    ``eval_episodes.csv`` in every run folder. ``actor_epochs``: epochs whose actor every run keeps
+    (:func:`actor_path`).
 
     ``widen_threads``: let the learner use the cores the workers leave idle when that is measured faster
     (:mod:`~surrol_data.algos.learner_threads`); False keeps it at ``torch_threads`` (the benchmark's baseline).
@@ -208,6 +217,9 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
             if m.state["epoch"] in episode_epochs:   # per-episode records at the epochs a report reads closely
                 _write_episode_rows(m.run_dir, m.state["epoch"], episode_rows[i])
             learner.policy(i).save(m.run_dir / "policy.pt")
+            if m.state["epoch"] in actor_epochs:
+                actor_path(m.run_dir, m.state["epoch"]).parent.mkdir(exist_ok=True)
+                learner.policy(i).save(actor_path(m.run_dir, m.state["epoch"]))
         # the checkpoints' contents are taken now; writing them (hundreds of MB once the buffers fill) waits
         # for the next epoch's first rollout, when the learner has no updates to run
         pending_save.append(_checkpoints(members, learner))
@@ -373,14 +385,7 @@ def _evaluate(pool: EnvPool, learner: EnsembleDDPG, episodes: int, steps: int,
                        "steps_to_complete": sm["mean_steps_to_success"], "economy_of_motion_cm": sm["mean_path_length_cm"]})
         rows = []
         for k, (t, p) in enumerate(zip(trajs, results)):
-            first_failed = (first_grasp_failed(t.action[:, -1], t.flags["grasped"]) if "grasped" in t.flags
-                            else None)
-            rows.append({"episode": k, "seed": EVAL_SEED_BASE + k, "final_success": p.final_success,
-                         "success": p.success, "steps_to_success": p.steps_to_success,
-                         "path_length_cm": p.path_length_cm, "jaw_closures": p.jaw_closures,
-                         "failed_grasps": p.failed_grasps, "drops": p.drops, "idle_time_s": p.idle_time_s,
-                         "first_grasp_failed": first_failed,
-                         "recovered": None if first_failed is None else bool(first_failed and p.final_success)})
+            rows.append({"episode": k, "seed": EVAL_SEED_BASE + k, **episode_row(t, p)})
         episode_rows.append(rows)
     return scores, episode_rows
 

@@ -6,11 +6,16 @@ found recursively under the paths given), groups them by demo source, and writes
 * ``learning_curves.png``: evaluation success per epoch, mean over seeds with a ±1 std band, one colour per
   demo source (and steps to complete, economy of motion below it);
 * ``report.md`` and ``report.html`` (self-contained: figures embedded): the Table I layout (rows success /
-  steps to complete / economy of motion; columns the demo sources at two epochs), the paper's figures beside
-  ours, an optional demo-quality table, and what made the numbers (runs, seeds, commands, versions, commit).
+  steps to complete under both conventions / economy of motion; columns the demo sources at two epochs), the
+  paper's figures beside ours, the attempts and recovery of each source's policies, the induced-failure probe,
+  an optional demo-quality table, and what made the numbers (runs, seeds, commands, versions, commit).
 
-Success is the evaluation's final-step success (the paper's and DEX's convention); "steps to complete" and
-"economy of motion" are the evaluation means over successful episodes, as the training loop logs them.
+Success is the evaluation's final-step success (the paper's and DEX's convention); "economy of motion" is the
+mean over successful episodes, as the training loop logs it; "steps to complete" is given twice, labelled: over
+successful episodes only, and with every failed episode counted at the horizon. At the report epochs the figures
+come from each run's ``report_episodes.csv`` (:data:`REPORT_FILE`: the kept actor of that epoch on fresh episodes,
+written by :mod:`surrol_data.study.report_eval`) where the run has one, else from the per-epoch evaluation
+(``metrics.jsonl``, and ``eval_episodes.csv`` for the horizon convention); the report says which.
 """
 
 from __future__ import annotations
@@ -30,23 +35,32 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from surrol_data.datasets.metrics import Estimate, estimate
+from surrol_data.evaluation.recovery_report import (ATTEMPT_COLUMNS, ATTEMPT_DEFINITION, PROBE_COLUMNS,
+                                                     PROBE_DEFINITION, REPORT_FILE, attempt_rows, epoch_episodes,
+                                                     probe_rows)
 from surrol_data.evaluation.report import Column, metrics_table_markdown
 
 SOURCES_ORDER = ("script", "novice", "expert")
 SOURCE_COLOURS = {"script": "#4c72b0", "novice": "#dd8452", "expert": "#55a868", "none": "#7f7f7f"}
 OTHER_COLOURS = ("#8172b3", "#c44e52", "#937860", "#da8bc3", "#8c8c8c")
-# The paper's Table I (NeedlePick, DDPG+BC+HER, 100 demos per source): mean ± std at 50 and 100 epochs.
+# The paper's Table I (NeedlePick, DDPG+BC+HER, 100 demos per source): mean ± std at 50 and 100 epochs. It does
+# not say how failed episodes enter "steps to complete": its figures stand beside both of our conventions.
 PAPER_TABLE1 = {
     50: {"success_rate": {"expert": (89.7, 6.4), "novice": (66.3, 12.7), "script": (43.2, 21.9)},
-         "steps_to_complete": {"expert": (39.2, None), "novice": (59.5, None), "script": (101.8, None)},
-         "economy_of_motion_cm": {"expert": (12.2, None), "novice": (14.2, None), "script": (15.0, None)}},
-    100: {"success_rate": {"expert": (99.3, None), "novice": (86.7, None), "script": (93.2, None)},
-          "steps_to_complete": {"expert": (15.0, None), "novice": (21.4, None), "script": (24.0, None)},
-          "economy_of_motion_cm": {"expert": (11.6, None), "novice": (12.6, None), "script": (13.5, None)}},
+         "steps_to_complete": {"expert": (39.2, 14.5), "novice": (59.5, 17.1), "script": (101.8, 27.1)},
+         "economy_of_motion_cm": {"expert": (12.2, 1.3), "novice": (14.2, 3.1), "script": (15.0, 2.5)}},
+    100: {"success_rate": {"expert": (99.3, 0.1), "novice": (86.7, 2.4), "script": (93.2, 6.9)},
+          "steps_to_complete": {"expert": (15.0, 5.5), "novice": (21.4, 5.9), "script": (24.0, 10.4)},
+          "economy_of_motion_cm": {"expert": (11.6, 1.1), "novice": (12.6, 2.9), "script": (13.5, 1.6)}},
 }
-TABLE_METRICS = (("success_rate", "Success rate (%)", 100.0, 1),
-                 ("steps_to_complete", "Steps to complete", 1.0, 1),
+PAPER_TABLE1_KEY = {"steps_to_complete_horizon": "steps_to_complete"}   # the paper's one steps row, beside both
+# (key, label, scale, digits): the learning curves' metrics, each logged every epoch ...
+CURVE_METRICS = (("success_rate", "Success rate (%)", 100.0, 1),
+                 ("steps_to_complete", "Steps to complete (successes only)", 1.0, 1),
                  ("economy_of_motion_cm", "Economy of motion (cm)", 1.0, 1))
+# ... and Table I's, which adds steps with every failure counted at the horizon
+TABLE_METRICS = (CURVE_METRICS[:2] + (("steps_to_complete_horizon", "Steps to complete (failures at the horizon)",
+                                       1.0, 1),) + CURVE_METRICS[2:])
 CURVES_FILE = "learning_curves.png"
 
 
@@ -137,21 +151,72 @@ def report_epochs(runs: Sequence[Run], requested: Sequence[int] | None = None) -
     return (50, 100) if last >= 100 else tuple(sorted({max(1, last // 2), last}))
 
 
+def epoch_scores(run: Run, epoch: int) -> tuple[dict, str | None]:
+    """One run's Table I figures at ``epoch`` and where they come from: its report evaluation (``report``: the kept
+    actor on fresh episodes), else the per-epoch evaluation (``metrics.jsonl``; steps with failures at the horizon
+    from ``eval_episodes.csv`` where it has the epoch); ({}, None) when it has neither."""
+    episodes, where = epoch_episodes(run.path, epoch)
+    horizon = float((run.config.get("schedule") or {}).get("max_episode_steps", math.nan))
+    scores = {}
+    if episodes is not None:
+        success = episodes["success"].astype(str).str.lower() == "true"
+        steps = episodes["steps_to_success"].astype(float)
+        scores["steps_to_complete_horizon"] = float(np.where(success, steps, horizon).mean())
+        if where == "report":
+            final = episodes["final_success"].astype(str).str.lower() == "true"
+            ok = episodes[success]
+            scores.update({"success_rate": float(final.mean()),
+                           "steps_to_complete": float(steps[success].mean()) if len(ok) else math.nan,
+                           "economy_of_motion_cm": float(ok["path_length_cm"].mean()) if len(ok) else math.nan})
+            return scores, "report"
+    row = run.at_epoch(epoch)
+    if row is None:
+        return scores, None
+    scores.update({k: row.get(k, math.nan) for k in ("success_rate", "steps_to_complete", "economy_of_motion_cm")})
+    return scores, "per-epoch"
+
+
 def table1_estimates(runs: Sequence[Run], epochs: Sequence[int]) -> dict[int, dict[str, dict[str, Estimate]]]:
     """{epoch: {metric: {source: Estimate over seeds}}}; a seed contributes only where it has that epoch."""
     out: dict[int, dict[str, dict[str, Estimate]]] = {}
     for epoch in epochs:
-        out[epoch] = {}
-        for metric, *_ in TABLE_METRICS:
-            out[epoch][metric] = {}
-            for source, group in by_source(runs).items():
-                rows = [r.at_epoch(epoch) for r in group]
-                out[epoch][metric][source] = estimate([row.get(metric, math.nan) for row in rows if row])
+        out[epoch] = {metric: {} for metric, *_ in TABLE_METRICS}
+        for source, group in by_source(runs).items():
+            scores = [epoch_scores(r, epoch)[0] for r in group]
+            for metric, *_ in TABLE_METRICS:
+                out[epoch][metric][source] = estimate([sc.get(metric, math.nan) for sc in scores if sc])
     return out
 
 
+def table1_sources_note(runs: Sequence[Run], epochs: Sequence[int]) -> str:
+    """What Table I's cells at each epoch stand on: how many runs' report evaluations (and episodes each), how many
+    runs' per-epoch evaluations."""
+    parts = []
+    for epoch in epochs:
+        report, per_epoch = [], []
+        for run in runs:
+            _, where = epoch_scores(run, epoch)
+            if where == "report":
+                report.append(len(epoch_episodes(run.path, epoch)[0]))
+            elif where == "per-epoch":
+                per_epoch.append(f"{run.source}/{run.seed}")
+        text = f"epoch {epoch}: "
+        if len(per_epoch) == len(runs):
+            per_epoch = [f"all {len(runs)} runs"]
+        if report:
+            text += (f"{len(report)} run(s) on their kept actor's evaluation of "
+                     f"{'/'.join(map(str, sorted(set(report))))} fresh episodes")
+        if per_epoch:
+            evals = sorted({int((r.config.get('schedule') or {}).get('eval_episodes', 0)) for r in runs
+                            if epoch_scores(r, epoch)[1] == "per-epoch"})
+            text += (("; " if report else "") + f"the per-epoch evaluation ({'/'.join(map(str, evals))} episodes) "
+                     f"of {', '.join(per_epoch)}, which have no {REPORT_FILE}")
+        parts.append(text)
+    return "Table I stands on " + "; ".join(parts) + "."
+
+
 def _paper_cell(epoch: int, metric: str, source: str, scale: float) -> str:
-    value = PAPER_TABLE1.get(epoch, {}).get(metric, {}).get(source)
+    value = PAPER_TABLE1.get(epoch, {}).get(PAPER_TABLE1_KEY.get(metric, metric), {}).get(source)
     if value is None:
         return "–"
     mean, std = value
@@ -167,8 +232,10 @@ def _with_ci(est: Estimate, digits: int, scale: float) -> str:
 
 
 def recovery_rows(runs: Sequence[Run], epoch: int) -> list[dict]:
-    """Per source, at ``epoch``: evaluation episodes whose first grasp failed, and how many of those the policy
-    recovered from (final success), pooled over seeds from each run's ``eval_episodes.csv``."""
+    """The jaw-flicker count of runs evaluated before the attempt measure (their ``eval_episodes.csv`` has
+    ``first_grasp_failed``): per source at ``epoch``, episodes whose first jaw closure held nothing and how many
+    still ended in success, pooled over seeds. The report no longer shows it (:func:`recovery_sections` counts
+    attempts instead); the README's summary of the committed study quotes it."""
     import pandas as pd
 
     rows = []
@@ -178,7 +245,8 @@ def recovery_rows(runs: Sequence[Run], epoch: int) -> list[dict]:
             path = run.path / "eval_episodes.csv"
             if path.is_file():
                 ep = pd.read_csv(path)
-                frames.append(ep[ep["epoch"] == epoch])
+                if "first_grasp_failed" in ep.columns:
+                    frames.append(ep[ep["epoch"] == epoch])
         if not frames:
             continue
         ep = pd.concat(frames)
@@ -193,17 +261,43 @@ def recovery_rows(runs: Sequence[Run], epoch: int) -> list[dict]:
     return rows
 
 
-# Stated in the report because it decides what the recovery row of a jittery policy means: the count follows the
-# commanded jaw, the same for every run, so a policy whose command flickers records "grasps" it never aimed.
-RECOVERY_DEFINITION = ("A jaw closure is an open→close transition of the commanded jaw (command < 0); a grasp failed "
-                       "when the object was never held while the jaw stayed closed. A policy whose jaw command "
-                       "flickers on the way to the object records failed grasps it never aimed, so its recovery rate "
-                       "measures success despite the flicker rather than retries; the last column (failed grasps per "
-                       "episode; a clean retry is 1) tells the two apart.")
-RECOVERY_COLUMNS = (Column("source", "Source"), Column("seeds", "Seeds"), Column("episodes", "Episodes"),
-                    Column("closed_jaw", "Closed the jaw"), Column("first_failed", "First grasp failed"),
-                    Column("recovered", "…then succeeded"), Column("rate", "Recovery rate"),
-                    Column("failed_grasps", "Failed grasps / episode", lambda v: f"{v:.2f}"))
+STEPS_CONVENTIONS = ("Steps to complete is given twice: over the successful episodes only (what the training loop "
+                     "logs), and with every failed episode counted at the horizon. The paper does not say which it "
+                     "used; its figures stand beside both (its 101.8 ± 27.1 steps at 43 % success would, with "
+                     "failures at its 150-step horizon, mean successes of about 38 steps).")
+
+
+def _run_list(missing: Mapping[str, Sequence[str]], n_runs: int, n_epochs: int) -> str:
+    """``all 12 runs`` when every run lacks it at every epoch, else each run with its epochs."""
+    if len(missing) == n_runs and all(len(e) == n_epochs for e in missing.values()):
+        return f"all {n_runs} runs ({', '.join(missing)})"
+    return ", ".join(f"{name} (epoch {', '.join(e)})" for name, e in missing.items())
+
+
+def recovery_sections(runs: Sequence[Run], epochs: Sequence[int]) -> list[str]:
+    """The attempts-and-recovery and the induced-failure sections, each saying which runs it lacks and why."""
+    groups = by_source(runs)
+    out = []
+    for title, build, columns, definition, lack in (
+            ("Attempts and recovery", attempt_rows, ATTEMPT_COLUMNS, ATTEMPT_DEFINITION,
+             "no per-episode attempt record at that epoch (their evaluation files predate the attempt measure, or "
+             "the task has no grasp record)"),
+            ("Induced failure: the first attempt made to fail", probe_rows, PROBE_COLUMNS, PROBE_DEFINITION,
+             f"no probe episodes ({REPORT_FILE}, written by the study after training since the probe was added)")):
+        rows, missing = [], {}
+        for epoch in epochs:
+            found, lacking = build(groups, epoch)
+            rows += found
+            for name in lacking:
+                missing.setdefault(name, []).append(str(epoch))
+        out.append(f"\n## {title}\n")
+        if rows:
+            out.append(metrics_table_markdown(rows, columns) + "\n\n" + definition + "\n")
+        else:
+            out.append(f"No run has it. {definition}\n")
+        if missing:
+            out.append(f"Not in the table: {_run_list(missing, len(runs), len(epochs))}: {lack}.\n")
+    return out
 
 
 def table1_markdown(estimates: Mapping[int, Mapping[str, Mapping[str, Estimate]]], sources: Sequence[str]) -> str:
@@ -235,7 +329,7 @@ def plot_learning_curves(path: str | Path, runs: Sequence[Run], title: str | Non
     for k, (source, group) in enumerate(by_source(runs).items()):
         colour = SOURCE_COLOURS.get(source, OTHER_COLOURS[k % len(OTHER_COLOURS)])
         epochs = sorted({int(r["epoch"]) for run in group for r in run.rows})
-        for ax, (metric, label, scale, _) in zip(axes, TABLE_METRICS):
+        for ax, (metric, label, scale, _) in zip(axes, CURVE_METRICS):
             values = np.full((len(group), len(epochs)), np.nan)
             for i, run in enumerate(group):
                 for j, e in enumerate(epochs):
@@ -364,15 +458,10 @@ def write_study_report(run_paths: Sequence[str | Path], out: str | Path, *, epoc
         f"Table I layout: ours (mean ± std over seeds, then the bootstrap 95 % interval of the mean) beside the "
         f"paper's, at epochs {', '.join(map(str, at))}.\n",
         "## Table I\n", table1_markdown(estimates, sources),
+        "\n" + table1_sources_note(runs, at) + " " + STEPS_CONVENTIONS + "\n",
         f"\n## Learning curves\n\n![learning curves]({CURVES_FILE})\n",
+        *recovery_sections(runs, at),
     ]
-    recovery = recovery_rows(runs, at[0])
-    if recovery:
-        sections += [f"\n## Recovery after a failed first grasp (epoch {at[0]})\n",
-                     "The paper saw policies trained on human demos retry after a failed grasp, where script-trained "
-                     "ones did not. Of the evaluation episodes whose first jaw closure held nothing, how many still "
-                     "ended in success, pooled over seeds:\n\n" + metrics_table_markdown(recovery, RECOVERY_COLUMNS)
-                     + "\n\n" + RECOVERY_DEFINITION]
     if demo_table_markdown:
         sections += ["\n## Demonstrations\n", demo_table_markdown]
     if notes:

@@ -6,8 +6,12 @@ after a kill with the same command), and when it finishes its small, final recor
 
 * ``metrics.csv`` / ``metrics.jsonl``: the per-epoch evaluation (success, steps to complete, economy of motion,
   losses, timings);
-* ``eval_episodes.csv``: one row per evaluation episode at the report epochs (success, steps, path, failed
-  grasps, whether a failed first grasp was recovered);
+* ``eval_episodes.csv``: one row per per-epoch evaluation episode at the report epochs (success, steps, path,
+  failed grasps, attempts, retries, the attempt outcome);
+* ``report_episodes.csv``: the report epochs' actors on fresh episodes and under the induced-failure probe
+  (:mod:`surrol_data.study.report_eval`): what the report's tables at those epochs stand on;
+* ``actors/epochNNN.pt``: the actor at epochs 25, 50, 75, 100 and the report epochs (``surrol-data eval
+  --policy`` runs each);
 * ``config.yaml`` (the composed Hydra config) and ``config.json`` (the training config the report reads);
 * ``run.json``: the code identity (commit, CPU, env / learner / config fingerprints), package versions, the demo
   set's content hash, CPU and wall time;
@@ -36,7 +40,7 @@ from surrol_data.study.spec import StudySpec, load_spec, parse_runs, run_name
 
 RUN_RECORD = "run.json"
 CHECKS_FILE = "code_checks.jsonl"
-KEPT = ("metrics.csv", "metrics.jsonl", "eval_episodes.csv", "policy.pt")
+KEPT = ("metrics.csv", "metrics.jsonl", "eval_episodes.csv", "report_episodes.csv", "policy.pt", "actors")
 
 
 def run_folder(out: Path, source: str, seed: int) -> Path:
@@ -170,7 +174,9 @@ def _finish_run(out: Path, spec: StudySpec, source: str, seed: int, work: Path, 
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     for name in KEPT:
-        if (work / name).exists():
+        if (work / name).is_dir():
+            shutil.copytree(work / name, tmp / name)
+        elif (work / name).exists():
             shutil.copy2(work / name, tmp / name)
     config = json.loads((work / "config.json").read_text())
     config["run_dir"] = final.relative_to(out).as_posix()
@@ -269,12 +275,20 @@ def _train_batch(out: Path, spec: StudySpec, selected, cfgs, train_cfgs, identit
                  shared: bool = True) -> list[Path]:
     """Train ``selected`` as one batched ensemble and move each into its run folder (see :func:`_start_batch`)."""
     from surrol_data.algos.train_batched import train_batched
+    from surrol_data.study.report_eval import actor_epochs, evaluate_report_epochs
 
     _start_batch(out, [run_name(*r) for r in selected], shared=shared)
     started = time.time()
     schedule = train_cfgs[0].schedule
     train_batched(train_cfgs, overlap=bool(cfgs[0].batched_overlap), n_workers=int(schedule.n_envs),
-                  progress=progress, episode_epochs=tuple(spec.report_epochs))
+                  progress=progress, episode_epochs=tuple(spec.report_epochs),
+                  actor_epochs=actor_epochs(spec.report_epochs, schedule.epochs))
+    for (source, seed), cfg in zip(selected, train_cfgs):
+        if progress:
+            print(f"evaluating {run_name(source, seed)} at epochs {list(spec.report_epochs)}: "
+                  f"{spec.report_episodes} fresh and {spec.report_episodes} probed episodes each")
+        evaluate_report_epochs(cfg.run_dir, cfg.env_id, spec.report_epochs, spec.report_episodes,
+                               schedule.max_episode_steps)
     return [_finish_run(out, spec, source, seed, Path(cfg.run_dir), composed, identity, hashes, started,
                         len(selected))
             for (source, seed), cfg, composed in zip(selected, train_cfgs, cfgs)]

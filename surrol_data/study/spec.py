@@ -23,6 +23,7 @@ class StudySpec:
     horizon: int = 150              # demo episode horizon (the paper's 150 for human NeedlePick demos)
     matched: bool = True
     report_epochs: tuple[int, ...] = (50, 100)
+    report_episodes: int = 100      # fresh and probed episodes per report epoch (study/report_eval.py)
     demo_dir: str | None = None            # shipped demo sets (relative to the repository); None: OUT/demos
     natural_demo_dir: str | None = None    # the same for the natural (unmatched) sets
     run_overrides: tuple[str, ...] = field(default_factory=tuple)   # Hydra overrides of every run (from the config)

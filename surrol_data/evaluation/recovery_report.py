@@ -1,0 +1,147 @@
+"""The study report's attempt, recovery and induced-failure tables, from each run's per-episode evaluation files.
+
+Per demo source at a report epoch, pooled over its seeds (episodes from :func:`epoch_episodes`):
+
+* attempts: attempts per episode, first-attempt success (of episodes with an attempt), and of the episodes whose
+  first attempt failed, how many retried, how many of those then succeeded (recovered), and how many stalled
+  (:mod:`surrol_data.datasets.attempts`);
+* the probe: of the episodes whose first attempt the probe disabled (:mod:`surrol_data.evaluation.grip_probe`),
+  how many retried and how many then succeeded.
+
+Rates are pooled over episodes, with the percentile bootstrap 95 % interval of the pooled rate (episodes resampled;
+:func:`~surrol_data.datasets.metrics.bootstrap_ci`) and the count it stands on.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from surrol_data.datasets.attempts import Outcome
+from surrol_data.datasets.metrics import bootstrap_ci
+from surrol_data.evaluation.report import Column
+
+REPORT_FILE = "report_episodes.csv"   # a run's report-epoch evaluation and probe episodes (study/report_eval.py)
+EPISODES_FILE = "eval_episodes.csv"   # a run's per-epoch evaluation episodes at the report epochs (train_batched)
+RETRIED = (Outcome.RECOVERED.value, Outcome.NOT_RECOVERED.value)
+FIRST_FAILED = (*RETRIED, Outcome.STALL.value)
+
+
+def _read(path: Path):
+    import pandas as pd
+
+    return pd.read_csv(path) if path.is_file() else None
+
+
+def epoch_episodes(run_path: Path, epoch: int, kind: str = "eval"):
+    """(episodes, where) of a run at ``epoch``: its report evaluation's rows of ``kind`` (``eval`` or ``probe``)
+    where it has them (where = ``report``), else for ``eval`` the per-epoch evaluation's rows (``per-epoch``);
+    (None, None) when it has neither."""
+    report = _read(Path(run_path) / REPORT_FILE)
+    if report is not None:
+        rows = report[(report["epoch"] == epoch) & (report["kind"] == kind)]
+        if len(rows):
+            return rows, "report"
+    if kind == "eval":
+        per_epoch = _read(Path(run_path) / EPISODES_FILE)
+        if per_epoch is not None and len(rows := per_epoch[per_epoch["epoch"] == epoch]):
+            return rows, "per-epoch"
+    return None, None
+
+
+def rate_cell(hits, digits: int = 0) -> str:
+    """``42 % [30, 55] (n=35)``: a pooled rate of 0/1 values with its bootstrap interval and count; ``–`` for none."""
+    v = np.asarray(list(hits), np.float64)
+    if len(v) == 0:
+        return "– (n=0)"
+    low, high = bootstrap_ci(v)
+    interval = f" [{100 * low:.{digits}f}, {100 * high:.{digits}f}]" if np.isfinite(low) else ""
+    return f"{100 * v.mean():.{digits}f} %{interval} (n={len(v)})"
+
+
+def mean_cell(values, digits: int = 2) -> str:
+    v = np.asarray(list(values), np.float64)
+    if len(v) == 0:
+        return "–"
+    low, high = bootstrap_ci(v)
+    interval = f" [{low:.{digits}f}, {high:.{digits}f}]" if np.isfinite(low) else ""
+    return f"{v.mean():.{digits}f}{interval}"
+
+
+def _pooled(groups: Mapping[str, Sequence], epoch: int, kind: str, need: str):
+    """{source: (episodes, seeds, where)} over the runs that have ``need`` among their columns, and the runs that
+    lack it (``source/seed``)."""
+    import pandas as pd
+
+    pooled, missing = {}, []
+    for source, runs in groups.items():
+        frames, wheres = [], set()
+        for run in runs:
+            ep, where = epoch_episodes(run.path, epoch, kind)
+            if ep is None or need not in ep.columns or ep[need].isna().all():
+                missing.append(f"{source}/{run.seed}")
+                continue
+            frames.append(ep)
+            wheres.add(where)
+        if frames:
+            pooled[source] = (pd.concat(frames, ignore_index=True), len(frames), "+".join(sorted(wheres)))
+    return pooled, missing
+
+
+def attempt_rows(groups: Mapping[str, Sequence], epoch: int) -> tuple[list[dict], list[str]]:
+    """Per source at ``epoch``: the attempt table's row; and the runs without an attempt record there."""
+    pooled, missing = _pooled(groups, epoch, "eval", "attempt_outcome")
+    rows = []
+    for source, (ep, seeds, where) in pooled.items():
+        outcome = ep["attempt_outcome"].astype(str)
+        tried = outcome != Outcome.NO_ATTEMPT.value
+        failed = outcome[outcome.isin(FIRST_FAILED)]
+        rows.append({"source": source, "epoch": str(epoch), "seeds": seeds, "episodes": f"{len(ep)} ({where})",
+                     "attempts": mean_cell(ep["attempts"]),
+                     "first_held": rate_cell(outcome[tried] == Outcome.FIRST_HELD.value),
+                     "retried": rate_cell(failed.isin(RETRIED)),
+                     "recovered": rate_cell(failed == Outcome.RECOVERED.value),
+                     "stall": rate_cell(failed == Outcome.STALL.value),
+                     "no_attempt": rate_cell(~tried)})
+    return rows, missing
+
+
+def probe_rows(groups: Mapping[str, Sequence], epoch: int) -> tuple[list[dict], list[str]]:
+    """Per source at ``epoch``: the induced-failure table's row; and the runs without probe episodes there."""
+    pooled, missing = _pooled(groups, epoch, "probe", "probed")
+    rows = []
+    for source, (ep, seeds, _) in pooled.items():
+        probed = ep[ep["probed"].astype(str).str.lower() == "true"]
+        outcome = probed["attempt_outcome"].astype(str)
+        rows.append({"source": source, "epoch": str(epoch), "seeds": seeds, "episodes": len(ep),
+                     "probed": len(probed), "retried": rate_cell(outcome.isin(RETRIED)),
+                     "recovered": rate_cell(outcome == Outcome.RECOVERED.value),
+                     "stall": rate_cell(outcome == Outcome.STALL.value)})
+    return rows, missing
+
+
+ATTEMPT_COLUMNS = (Column("source", "Source"), Column("epoch", "Epoch"), Column("seeds", "Seeds"),
+                   Column("episodes", "Episodes"), Column("attempts", "Attempts / episode"),
+                   Column("first_held", "First attempt held"), Column("retried", "After a failed first: retried"),
+                   Column("recovered", "…retried and succeeded"), Column("stall", "…stalled (no retry)"),
+                   Column("no_attempt", "No attempt"))
+PROBE_COLUMNS = (Column("source", "Source"), Column("epoch", "Epoch"), Column("seeds", "Seeds"),
+                 Column("episodes", "Episodes"), Column("probed", "First attempt disabled"),
+                 Column("retried", "Retried"), Column("recovered", "Retried and succeeded"),
+                 Column("stall", "Stalled (no retry)"))
+ATTEMPT_DEFINITION = (
+    "An attempt is a close of the jaw (command < 0) of at least two steps, with the measured jaw closing, that starts "
+    "with the tool tip within 5 mm of the needle's grasp point (its mid-arc point, not its centre), or any close that "
+    "held the needle; jaw flicker away from the needle is no attempt. It failed when the needle was never held, or "
+    "was lost before a 5 mm lift. An attempt after a failed one is a retry; an episode whose first attempt failed and "
+    "that never retried stalled. First attempt held: of the episodes with an attempt; retried, recovered (retried and "
+    "the episode ended in success) and stalled: of the episodes whose first attempt failed. Pooled over seeds: the "
+    "rate, its bootstrap 95 % interval (episodes resampled) and the count it stands on. `report`: the report "
+    "epoch's actor on fresh episodes; `per-epoch`: the training's own evaluation at that epoch.")
+PROBE_DEFINITION = (
+    "The paper's observation as an experiment: each report epoch's actor plays fresh episodes in which its first "
+    "attempt near the needle cannot grip (the grip is off and the blades pass through the needle until the jaw "
+    "opens); every later attempt grips as usual. Of the episodes whose first attempt was so disabled: how many "
+    "retried, how many retried and succeeded, and how many stalled.")
