@@ -210,7 +210,7 @@ def table1_sources_note(runs: Sequence[Run], epochs: Sequence[int]) -> str:
             evals = sorted({int((r.config.get('schedule') or {}).get('eval_episodes', 0)) for r in runs
                             if epoch_scores(r, epoch)[1] == "per-epoch"})
             text += (("; " if report else "") + f"the per-epoch evaluation ({'/'.join(map(str, evals))} episodes) "
-                     f"of {', '.join(per_epoch)}, which have no {REPORT_FILE}")
+                     f"of {', '.join(per_epoch)} (no {REPORT_FILE})")
         parts.append(text)
     return "Table I stands on " + "; ".join(parts) + "."
 
