@@ -241,6 +241,26 @@ def test_batched_resume_takes_the_oldest_epoch_when_a_kill_split_the_members(tmp
     assert json.loads((member0 / "process.json").read_text())["resumed_after_epoch"] == 2
 
 
+def test_the_actors_of_four_epochs_are_kept_and_load(tmp_path, reach_demos):
+    """The study keeps the actor at epochs 25, 50, 75 and 100 (here the four epochs of a 4-epoch run)."""
+    from surrol_data.algos.policies import load_policy
+    from surrol_data.algos.train_batched import actor_path
+    from surrol_data.study.report_eval import actor_epochs
+
+    assert actor_epochs((50, 100), 100) == (25, 50, 75, 100) and actor_epochs((1, 2), 2) == (1, 2)
+    cfgs = [run_config(tmp_path / str(s), reach_demos, s, epochs=4) for s in (0, 1)]
+    for cfg in cfgs:   # one cycle an epoch: the actors still change from epoch to epoch
+        cfg.schedule = dataclasses.replace(cfg.schedule, cycles=1)
+    train_batched(cfgs, n_workers=0, progress=False, actor_epochs=(1, 2, 3, 4))
+    obs = {"observation": np.linspace(-1, 1, 7, dtype=np.float32), "desired_goal": np.full(3, 0.1, np.float32)}
+    for cfg in cfgs:
+        actions = {e: load_policy(actor_path(cfg.run_dir, e))(obs) for e in (1, 2, 3, 4)}
+        np.testing.assert_array_equal(actions[4], load_policy(Path(cfg.run_dir) / "policy.pt")(obs))
+        assert not np.array_equal(actions[1], actions[4])      # each is its epoch's actor, not the last one copied
+    assert sorted(p.name for p in (Path(cfgs[0].run_dir) / "actors").iterdir()) == \
+        ["epoch001.pt", "epoch002.pt", "epoch003.pt", "epoch004.pt"]
+
+
 def _cli_overrides(run_root, demos_root, *extra):
     return ["batched=true", "seed=0,1", "task=NeedleReach", "algo=ddpgbc_warm", "demos=script", "demos.num=4",
             f"demos_root={demos_root}", "experiment=smoke", "experiment.epochs=5", "algo.params.hidden_sizes=[64,64]",

@@ -75,6 +75,7 @@ def test_table1_configs_hold_the_paper_protocol():
                                                                 (0, 1, 2, 3))
     assert (spec.episodes, spec.operators, spec.horizon, spec.matched, spec.report_epochs) == (100, 4, 150, True,
                                                                                                (50, 100))
+    assert spec.report_episodes == 100   # each report epoch's actor on 100 fresh and 100 probed episodes
     from hydra import compose, initialize_config_dir
 
     from surrol_data.train_app import config_dir, to_train_config

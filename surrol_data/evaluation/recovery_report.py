@@ -52,22 +52,22 @@ def epoch_episodes(run_path: Path, epoch: int, kind: str = "eval"):
 
 
 def rate_cell(hits, digits: int = 0) -> str:
-    """``42 % [30, 55] (n=35)``: a pooled rate of 0/1 values with its bootstrap interval and count; ``–`` for none."""
-    v = np.asarray(list(hits), np.float64)
-    if len(v) == 0:
-        return "– (n=0)"
-    low, high = bootstrap_ci(v)
-    interval = f" [{100 * low:.{digits}f}, {100 * high:.{digits}f}]" if np.isfinite(low) else ""
-    return f"{100 * v.mean():.{digits}f} %{interval} (n={len(v)})"
+    """``42 % [30, 55] (n=35)``: a pooled rate of 0/1 values with its bootstrap interval and count."""
+    return _cell(hits, digits, 100.0, " %") + f" (n={len(list(hits))})"
 
 
 def mean_cell(values, digits: int = 2) -> str:
+    """``1.25 [1.00, 1.62]``: a mean with its bootstrap interval."""
+    return _cell(values, digits, 1.0, "")
+
+
+def _cell(values, digits: int, scale: float, unit: str) -> str:
     v = np.asarray(list(values), np.float64)
     if len(v) == 0:
         return "–"
     low, high = bootstrap_ci(v)
-    interval = f" [{low:.{digits}f}, {high:.{digits}f}]" if np.isfinite(low) else ""
-    return f"{v.mean():.{digits}f}{interval}"
+    interval = f" [{scale * low:.{digits}f}, {scale * high:.{digits}f}]" if np.isfinite(low) else ""
+    return f"{scale * v.mean():.{digits}f}{unit}{interval}"
 
 
 def _pooled(groups: Mapping[str, Sequence], epoch: int, kind: str, need: str):
