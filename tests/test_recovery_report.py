@@ -98,3 +98,14 @@ def test_the_report_tables_and_what_they_lack(runs, tmp_path):
     assert attempts.count("Not in the table: novice/0 (epoch 50, 100)") == 1
     assert "no per-episode attempt record" in attempts
     assert "Not in the table: novice/0 (epoch 50, 100): no probe episodes" in probe
+
+
+def test_a_resumed_study_skips_a_finished_report_evaluation(tmp_path):
+    from surrol_data.study.report_eval import has_report_episodes
+
+    assert not has_report_episodes(tmp_path, [50, 100], 4)
+    rows = [_episode(e, kind, "stall", probed=True) for e in (50, 100) for kind in ("eval", "probe") for _ in range(4)]
+    pd.DataFrame(rows[:-1]).to_csv(tmp_path / "report_episodes.csv", index=False)
+    assert not has_report_episodes(tmp_path, [50, 100], 4)     # killed before its last probe episode was written
+    pd.DataFrame(rows).to_csv(tmp_path / "report_episodes.csv", index=False)
+    assert has_report_episodes(tmp_path, [50, 100], 4) and not has_report_episodes(tmp_path, [50, 100], 100)

@@ -33,6 +33,17 @@ def actor_epochs(report_epochs: Sequence[int], epochs: int) -> tuple[int, ...]:
     return tuple(sorted(e for e in {*KEPT_ACTOR_EPOCHS, *map(int, report_epochs)} if 1 <= e <= epochs))
 
 
+def has_report_episodes(run_dir: str | Path, epochs: Sequence[int], episodes: int) -> bool:
+    """Whether ``run_dir`` holds the report evaluation of these epochs already (a study resumed after it)."""
+    import pandas as pd
+
+    path = Path(run_dir) / REPORT_FILE
+    if not path.is_file():
+        return False
+    counts = pd.read_csv(path).groupby(["epoch", "kind"]).size()
+    return all(counts.get((int(e), kind), 0) == episodes for e in epochs for kind in ("eval", "probe"))
+
+
 def evaluate_report_epochs(run_dir: str | Path, env_id: str, epochs: Sequence[int], episodes: int,
                            max_steps: int) -> Path:
     """Play every report epoch's kept actor of ``run_dir`` (eval and probe episodes) and write ``REPORT_FILE``."""

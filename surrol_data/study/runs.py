@@ -275,7 +275,7 @@ def _train_batch(out: Path, spec: StudySpec, selected, cfgs, train_cfgs, identit
                  shared: bool = True) -> list[Path]:
     """Train ``selected`` as one batched ensemble and move each into its run folder (see :func:`_start_batch`)."""
     from surrol_data.algos.train_batched import train_batched
-    from surrol_data.study.report_eval import actor_epochs, evaluate_report_epochs
+    from surrol_data.study.report_eval import actor_epochs, evaluate_report_epochs, has_report_episodes
 
     _start_batch(out, [run_name(*r) for r in selected], shared=shared)
     started = time.time()
@@ -284,6 +284,8 @@ def _train_batch(out: Path, spec: StudySpec, selected, cfgs, train_cfgs, identit
                   progress=progress, episode_epochs=tuple(spec.report_epochs),
                   actor_epochs=actor_epochs(spec.report_epochs, schedule.epochs))
     for (source, seed), cfg in zip(selected, train_cfgs):
+        if has_report_episodes(cfg.run_dir, spec.report_epochs, spec.report_episodes):
+            continue   # (a study killed after this run's report evaluation, resumed)
         if progress:
             print(f"evaluating {run_name(source, seed)} at epochs {list(spec.report_epochs)}: "
                   f"{spec.report_episodes} fresh and {spec.report_episodes} probed episodes each")
