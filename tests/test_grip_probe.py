@@ -53,7 +53,7 @@ def test_the_probe_disables_exactly_the_first_attempt(env, seed):
     traj = rollout(env, RetryingOracle(env), seed)
     record, probe = trajectory_attempts(traj), env.env.record
     first, *later = record.attempts
-    assert probe.spent and probe.prevented_grip and probe.disabled_from == first.start
+    assert probe.spent and probe.prevented_grip and probe.disabled_from == first.start and probe.retries == 1
     assert first.failed and not first.held           # the disabled attempt: the blades closed on nothing
     assert later and later[0].retry and later[0].held and later[0].lifted   # the next one grips as usual
     disabled = np.flatnonzero(env.disabled)
@@ -64,6 +64,7 @@ def test_the_probe_disables_exactly_the_first_attempt(env, seed):
 def test_the_oracle_never_retries_so_the_probe_makes_it_stall(env):
     traj = rollout(env, "oracle", 0)
     assert trajectory_attempts(traj).outcome is Outcome.STALL and not traj.final_success
+    assert env.env.record.spent and env.env.record.retries == 0
     plain = rollout(env.env.env, "oracle", 0)   # without the probe the same episode's first attempt holds
     assert trajectory_attempts(plain).outcome is Outcome.FIRST_HELD and plain.final_success
 

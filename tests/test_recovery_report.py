@@ -29,22 +29,22 @@ def _run(root, source, seed, *, report=None, per_epoch=None):
     return folder
 
 
-def _episode(epoch, kind, outcome, steps=-1, path=10.0, probed=None):
+def _episode(epoch, kind, outcome, steps=-1, path=10.0, probed=None, retries=0):
     success = steps > 0
     attempts = {"no_attempt": 0, "first_held": 1, "stall": 1, "retried_recovered": 2, "retried_not_recovered": 2}
     row = {"epoch": epoch, "kind": kind, "final_success": success, "success": success, "steps_to_success": steps,
            "path_length_cm": path, "attempts": attempts[outcome], "failed_attempts": int(outcome != "first_held"),
            "retries": int(outcome.startswith("retried")), "attempt_outcome": outcome}
     if kind == "probe":
-        row["probed"] = probed
+        row["probed"], row["probe_retries"] = probed, retries
     return row
 
 
 def _script_report(epoch):
     return [_episode(epoch, "eval", "first_held", 20, 10.0), _episode(epoch, "eval", "retried_recovered", 40, 14.0),
             _episode(epoch, "eval", "stall"), _episode(epoch, "eval", "stall"),
-            _episode(epoch, "probe", "stall", probed=True), _episode(epoch, "probe", "retried_recovered", 60,
-                                                                     probed=True),
+            _episode(epoch, "probe", "stall", probed=True),
+            _episode(epoch, "probe", "first_held", 60, probed=True, retries=1),   # retried off the mid-arc point
             _episode(epoch, "probe", "first_held", 30, probed=False)]   # the probe never fired: not counted
 
 

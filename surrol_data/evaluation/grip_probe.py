@@ -2,16 +2,20 @@
 is watched (the paper saw human-trained policies grasp again after a failed first attempt, script-trained ones not).
 
 :class:`InducedFailure` wraps a one-arm object task's env. From the first close of the jaw (jaw command < 0) that
-starts with the tool tip within :data:`ARM_RADIUS_M` of the object's grasp point, until the jaw command opens
-again, the grasp cannot form: the env's ``Grasp.between_blades`` answers False for this env's grasp alone (an
-instance attribute over the method), and the blades pass through the object (their collisions with it are off):
-the jaw closes on nothing, as beside the wire. Only the grip alone would not do: the blades' contacts squeeze the
-needle hard enough to lift it (measured: the oracle lifted it to the goal with the grip off). The blades collide
-again once the jaw is open and clear of the object (or at the next close).
-The probe is spent on the first such close that is an attempt by :mod:`surrol_data.datasets.attempts`' rules
-(long enough, the jaw closing, near the grasp point); a shorter or farther close re-arms it (it grips nothing
-meanwhile: a one-step close at the needle would have gripped, and the probed episode differs there). Every later
-close grips as usual, so exactly one attempt — the first the measure sees — is disabled.
+starts with a blade within :data:`ARM_RADIUS_M` of the object — anywhere on it: trained policies grip the needle
+6–26 mm from the mid-arc point the attempt measure's grasp point is, so a rule on that point alone let most
+first attempts through — until the jaw command opens again, the grasp cannot form: the env's
+``Grasp.between_blades`` answers False for this env's grasp alone (an instance attribute over the method), and
+the blades pass through the object (their collisions with it are off): the jaw closes on nothing, as beside the
+wire. Only the grip alone would not do: the blades' contacts squeeze the needle hard enough to lift it (measured:
+the oracle lifted it to the goal with the grip off). The blades collide again once the jaw is open and clear of
+the object (or at the next close).
+
+The probe is spent on the first such close that is an attempt (at least :data:`ATTEMPT_MIN_STEPS` actions, the
+measured jaw closing, a blade within :data:`NEAR_M` of the object at its start or after its first action); a
+shorter or farther close re-arms it (it grips nothing meanwhile). Every later close grips as usual, so exactly one
+attempt is disabled; the later closes that are attempts by the same rule, or that hold the object, are its
+retries (:attr:`ProbeRecord.retries`).
 
 Each step's info says whether the grip was disabled (``grip_disabled``); after the episode
 :attr:`InducedFailure.record` gives the step the disabled attempt began and whether a grip was prevented.
@@ -24,13 +28,13 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
-from surrol_data.datasets.attempts import (ATTEMPT_MIN_STEPS, JAW_CLOSING_RAD, NEAR_M, ONE_ARM_OBJECT_OBS_DIM,
-                                           WAYPOINT_DIMS)
+from surrol_data.datasets.attempts import ATTEMPT_MIN_STEPS, JAW_CLOSING_RAD, NEAR_M, ONE_ARM_OBJECT_OBS_DIM
 from surrol_data.envs.physics import pb
 from surrol_data.envs.psm import JAW_JOINTS
+from surrol_data.envs.units import SCALING
 
-# The grip is disabled from any close that starts this near the grasp point: wider than the attempt rule's NEAR_M,
-# so that a close the measure counts from its second state (the tip moved in during the first action) is covered.
+# The grip is disabled from any close that starts with a blade this near the object: wider than the attempt rule's
+# NEAR_M, so that a close that comes near during its first action (an attempt by that rule) is covered.
 ARM_RADIUS_M = 2 * NEAR_M
 
 
@@ -41,6 +45,7 @@ class ProbeRecord:
     prevented_grip: bool = False  # the blades met the object between them during the disabled attempt (it would
     #                               have gripped; False: it closed beside the object anyway)
     spent: bool = False           # one attempt was disabled; the grip is as usual from then on
+    retries: int = 0              # attempts after the disabled one (closes near the object, or that held)
 
 
 class InducedFailure(gym.Wrapper):
@@ -59,38 +64,44 @@ class InducedFailure(gym.Wrapper):
         self._grasp = grasp
         self._passing = False             # the blades' collisions with the object are off
         self.record = ProbeRecord()
-        self._obs = None
-        self._on = False
-        self._run: list[np.ndarray] = []   # the observations of the current disabled close (its states)
+        self._close: dict | None = None   # the jaw close under way
         self._t = 0
 
     def reset(self, **kwargs):
         self._enable()
         self._passing = False   # (the env's reset respawns the object: its collisions are as built)
         self.record = ProbeRecord()
-        self._on, self._run, self._t = False, [], 0
-        self._obs, info = self.env.reset(**kwargs)
-        return self._obs, {**info, "grip_disabled": False}
+        self._close, self._t = None, 0
+        obs, info = self.env.reset(**kwargs)
+        return obs, {**info, "grip_disabled": False}
 
     def step(self, action):
         closing = float(np.asarray(action).reshape(-1)[4]) < 0
-        if self._passing and not self._on and (closing or self._blades_clear()):
+        if self._passing and (self._close is None or not self._close["disabled"]) \
+                and (closing or self._blades_clear()):
             self._collide(True)
-        if self._on and not closing:
+        if self._close is not None and not closing:
             self._close_ends()
-        elif not self._on and closing and not self.record.spent and not self._grasp.attached \
-                and self._distance(self._obs) <= ARM_RADIUS_M:
-            self._on, self._run, self._prevented = True, [self._obs["observation"]], False
-            self._started = self._t
-            self._disable()
-        disabled = self._on
+        if self._close is None and closing:
+            distance = self._blade_distance()
+            disabled = not self.record.spent and not self._grasp.attached and distance <= ARM_RADIUS_M
+            self._close = {"start": self._t, "jaw": self._grasp.psm.jaw_angle(), "min_jaw": np.inf, "steps": 0,
+                           "near": distance <= NEAR_M, "held": False, "disabled": disabled, "prevented": False}
+            if disabled:
+                self._disable()
+        disabled = self._close is not None and self._close["disabled"]
         obs, reward, terminated, truncated, info = self.env.step(action)
-        if self._on:
-            self.record.disabled_steps += 1
-            self._run.append(obs["observation"])
-        self._obs, self._t = obs, self._t + 1
-        if self._on and (terminated or truncated):
-            self._close_ends()
+        if self._close is not None:
+            c = self._close
+            c["steps"] += 1
+            c["min_jaw"] = min(c["min_jaw"], self._grasp.psm.jaw_angle())
+            c["held"] = c["held"] or self._grasp.attached
+            if c["steps"] == 1:
+                c["near"] = c["near"] or self._blade_distance() <= NEAR_M
+            self.record.disabled_steps += int(c["disabled"])
+            if terminated or truncated:
+                self._close_ends()
+        self._t += 1
         return obs, reward, terminated, truncated, {**info, "grip_disabled": disabled}
 
     def close(self):
@@ -100,27 +111,32 @@ class InducedFailure(gym.Wrapper):
         return super().close()
 
     # ------------------------------------------------------------------ internals
-    @staticmethod
-    def _distance(obs) -> float:
-        o = np.asarray(obs["observation"], np.float64)
-        return float(np.linalg.norm(o[:3] - o[WAYPOINT_DIMS]))
-
     def _close_ends(self) -> None:
-        """The disabled close ended (the jaw command opened, or the episode ended): spent if it was an attempt."""
-        self._on = False
-        self._enable()
-        states = np.asarray(self._run, np.float64)
-        steps = len(states) - 1
-        closing = steps >= 1 and states[0, 6] - states[1:, 6].min() >= JAW_CLOSING_RAD
-        near = min(float(np.linalg.norm(s[:3] - s[WAYPOINT_DIMS])) for s in states[:2]) <= NEAR_M
-        if steps >= ATTEMPT_MIN_STEPS and closing and near:
-            self.record.spent = True
-            self.record.disabled_from = self._started
-            self.record.prevented_grip = self._prevented
+        """A close ended (the jaw command opened, or the episode ended). The disabled one spends the probe if it was
+        an attempt; a later one that held, or was an attempt, is a retry."""
+        c, self._close = self._close, None
+        attempt = c["steps"] >= ATTEMPT_MIN_STEPS and c["jaw"] - c["min_jaw"] >= JAW_CLOSING_RAD and c["near"]
+        if c["disabled"]:
+            self._enable()
+            if attempt:
+                self.record.spent = True
+                self.record.disabled_from = c["start"]
+                self.record.prevented_grip = c["prevented"]
+        elif self.record.spent and (attempt or c["held"]):
+            self.record.retries += 1
+
+    def _blade_distance(self) -> float:
+        """How far (real metres) the nearer blade is from the object, up to ARM_RADIUS_M (inf beyond)."""
+        g = self._grasp
+        reach = ARM_RADIUS_M * SCALING
+        found = [p[8] for link in JAW_JOINTS
+                 for p in pb.getClosestPoints(g.psm.body, g.object_id, reach, link, g.object_link,
+                                              physicsClientId=g.client._client)]
+        return max(min(found), 0.0) / SCALING if found else float("inf")
 
     def _blocked(self) -> bool:
-        if type(self._grasp).between_blades(self._grasp):
-            self._prevented = True
+        if type(self._grasp).between_blades(self._grasp) and self._close is not None:
+            self._close["prevented"] = True
         return False
 
     def _disable(self) -> None:

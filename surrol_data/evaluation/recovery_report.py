@@ -114,11 +114,11 @@ def probe_rows(groups: Mapping[str, Sequence], epoch: int) -> tuple[list[dict], 
     rows = []
     for source, (ep, seeds, _) in pooled.items():
         probed = ep[ep["probed"].astype(str).str.lower() == "true"]
-        outcome = probed["attempt_outcome"].astype(str)
+        retried = probed["probe_retries"].astype(int) > 0
+        success = probed["final_success"].astype(str).str.lower() == "true"
         rows.append({"source": source, "epoch": str(epoch), "seeds": seeds, "episodes": len(ep),
-                     "probed": len(probed), "retried": rate_cell(outcome.isin(RETRIED)),
-                     "recovered": rate_cell(outcome == Outcome.RECOVERED.value),
-                     "stall": rate_cell(outcome == Outcome.STALL.value)})
+                     "probed": len(probed), "retried": rate_cell(retried), "recovered": rate_cell(retried & success),
+                     "stall": rate_cell(~retried)})
     return rows, missing
 
 
@@ -142,6 +142,7 @@ ATTEMPT_DEFINITION = (
     "epoch's actor on fresh episodes; `per-epoch`: the training's own evaluation at that epoch.")
 PROBE_DEFINITION = (
     "The paper's observation as an experiment: each report epoch's actor plays fresh episodes in which its first "
-    "attempt near the needle cannot grip (the grip is off and the blades pass through the needle until the jaw "
-    "opens); every later attempt grips as usual. Of the episodes whose first attempt was so disabled: how many "
-    "retried, how many retried and succeeded, and how many stalled.")
+    "attempt near the needle (a close of at least two steps starting with a blade within 5 mm of the needle, anywhere "
+    "on it) cannot grip: the grip is off and the blades pass through the needle until the jaw opens; every later "
+    "attempt grips as usual. Of the episodes with an attempt so disabled: how many retried (a later such close, or "
+    "one that held the needle), how many retried and the episode ended in success, and how many stalled.")

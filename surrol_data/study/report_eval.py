@@ -11,7 +11,8 @@ trained, each report epoch's actor plays
   near the grasp point (:class:`~surrol_data.evaluation.grip_probe.InducedFailure`): does it reopen and grasp again?
 
 One row per episode (:func:`~surrol_data.evaluation.episode_rows.episode_row`, with ``epoch``, ``kind``,
-``episode``, ``seed``; probe rows add whether the probe disabled the episode's first attempt) in
+``episode``, ``seed``; probe rows add whether the probe disabled an attempt, from which step, how many attempts
+followed it and whether it prevented a grip) in
 ``report_episodes.csv``. Every run and epoch plays the same seeds, so sources compare on the same scenes.
 """
 
@@ -54,7 +55,6 @@ def evaluate_report_epochs(run_dir: str | Path, env_id: str, epochs: Sequence[in
     from surrol_data.algos.bc import BCPolicy
     from surrol_data.algos.train_batched import actor_path
     from surrol_data.collect.rollout import rollout
-    from surrol_data.datasets.attempts import trajectory_attempts
     from surrol_data.evaluation.episode_rows import episode_row
     from surrol_data.evaluation.grip_probe import InducedFailure
     from surrol_data.evaluation.rollout import policy_threads
@@ -77,11 +77,9 @@ def evaluate_report_epochs(run_dir: str | Path, env_id: str, epochs: Sequence[in
                                  **episode_row(traj)})
                 for k in range(episodes):
                     traj = rollout(probe, policy, PROBE_SEED_BASE + k)
-                    attempts = trajectory_attempts(traj)
-                    first = attempts.attempts[0].start if attempts and attempts.attempts else -1
                     rows.append({"epoch": epoch, "kind": "probe", "episode": k, "seed": PROBE_SEED_BASE + k,
-                                 **episode_row(traj),
-                                 "probed": bool(probe.record.spent and probe.record.disabled_from == first),
+                                 **episode_row(traj), "probed": probe.record.spent,
+                                 "probe_from": probe.record.disabled_from, "probe_retries": probe.record.retries,
                                  "probe_prevented_grip": probe.record.prevented_grip})
     finally:
         plain.close()
