@@ -134,7 +134,9 @@ PROBE_COLUMNS = (Column("source", "Source"), Column("epoch", "Epoch"), Column("s
 ATTEMPT_DEFINITION = (
     "An attempt is a close of the jaw (command < 0) of at least two steps, with the measured jaw closing, that starts "
     "with the tool tip within 5 mm of the needle's grasp point (its mid-arc point, not its centre), or any close that "
-    "held the needle; jaw flicker away from the needle is no attempt. It failed when the needle was never held, or "
+    "held the needle; jaw flicker away from the needle is no attempt (nor is a close that misses the needle away from "
+    "its mid-arc point: the policies here grip it up to 26 mm from that point, so a miss there goes uncounted; the "
+    "probe below measures the blades' distance to the whole needle). It failed when the needle was never held, or "
     "was lost before a 5 mm lift. An attempt after a failed one is a retry; an episode whose first attempt failed and "
     "that never retried stalled. First attempt held: of the episodes with an attempt; retried, recovered (retried and "
     "the episode ended in success) and stalled: of the episodes whose first attempt failed. Pooled over seeds: the "
