@@ -1,21 +1,21 @@
 """The induced-failure probe: a policy's first attempt near the grasp point is made to fail, and what it does next
 is watched (the paper saw human-trained policies grasp again after a failed first attempt, script-trained ones not).
 
-:class:`InducedFailure` wraps a one-arm object task's env. From the first close of the jaw (jaw command < 0) that
-starts with a blade within :data:`ARM_RADIUS_M` of the object — anywhere on it: trained policies grip the needle
-6–26 mm from the mid-arc point the attempt measure's grasp point is, so a rule on that point alone let most
-first attempts through — until the jaw command opens again, the grasp cannot form: the env's
-``Grasp.between_blades`` answers False for this env's grasp alone (an instance attribute over the method), and
-the blades pass through the object (their collisions with it are off): the jaw closes on nothing, as beside the
-wire. Only the grip alone would not do: the blades' contacts squeeze the needle hard enough to lift it (measured:
-the oracle lifted it to the goal with the grip off). The blades collide again once the jaw is open and clear of
-the object (or at the next close).
+:class:`InducedFailure` wraps a one-arm object task's env. Until the probe is spent, every close of the jaw (jaw
+command < 0) runs with the grasp unable to form, until the jaw command opens again: the env's
+``Grasp.between_blades`` answers False for this env's grasp alone (an instance attribute over the method), and the
+blades pass through the object (their collisions with it are off): the jaw closes on nothing, as beside the wire.
+Only the grip alone would not do: the blades' contacts squeeze the needle hard enough to lift it (measured: the
+oracle lifted it to the goal with the grip off). The blades collide again once the jaw is open and clear of the
+object (or at the next close). A close away from the object could not grip anyway: disabling every close before
+the first attempt, rather than those that start near, catches the policies that close while still descending and
+grip within that first action (the committed script policy, 6 of 10 episodes with a 1 cm arming radius).
 
-The probe is spent on the first such close that is an attempt (at least :data:`ATTEMPT_MIN_STEPS` actions, the
-measured jaw closing, a blade within :data:`NEAR_M` of the object at its start or after its first action); a
-shorter or farther close re-arms it (it grips nothing meanwhile). Every later close grips as usual, so exactly one
-attempt is disabled; the later closes that are attempts by the same rule, or that hold the object, are its
-retries (:attr:`ProbeRecord.retries`).
+The probe is spent on the first close that is an attempt: at least :data:`ATTEMPT_MIN_STEPS` actions, the measured
+jaw closing, a blade within :data:`NEAR_M` of the object — anywhere on it: trained policies grip the needle 6–26 mm
+from the mid-arc point the attempt measure's grasp point is — at its start or after its first action. Every later
+close grips as usual, so exactly one attempt is disabled; the later closes that are attempts by the same rule, or
+that hold the object, are its retries (:attr:`ProbeRecord.retries`).
 
 Each step's info says whether the grip was disabled (``grip_disabled``); after the episode
 :attr:`InducedFailure.record` gives the step the disabled attempt began and whether a grip was prevented.
@@ -33,9 +33,6 @@ from surrol_data.envs.physics import pb
 from surrol_data.envs.psm import JAW_JOINTS
 from surrol_data.envs.units import SCALING
 
-# The grip is disabled from any close that starts with a blade this near the object: wider than the attempt rule's
-# NEAR_M, so that a close that comes near during its first action (an attempt by that rule) is covered.
-ARM_RADIUS_M = 2 * NEAR_M
 
 
 @dataclass
@@ -84,7 +81,7 @@ class InducedFailure(gym.Wrapper):
             self._close_ends()
         if self._close is None and closing:
             distance = self._blade_distance()
-            disabled = not self.record.spent and not self._grasp.attached and distance <= ARM_RADIUS_M
+            disabled = not self.record.spent and not self._grasp.attached
             self._close = {"start": self._t, "jaw": self._grasp.psm.jaw_angle(), "min_jaw": np.inf, "steps": 0,
                            "near": distance <= NEAR_M, "held": False, "disabled": disabled, "prevented": False}
             if disabled:
@@ -126,9 +123,9 @@ class InducedFailure(gym.Wrapper):
             self.record.retries += 1
 
     def _blade_distance(self) -> float:
-        """How far (real metres) the nearer blade is from the object, up to ARM_RADIUS_M (inf beyond)."""
+        """How far (real metres) the nearer blade is from the object, up to NEAR_M (inf beyond)."""
         g = self._grasp
-        reach = ARM_RADIUS_M * SCALING
+        reach = NEAR_M * SCALING
         found = [p[8] for link in JAW_JOINTS
                  for p in pb.getClosestPoints(g.psm.body, g.object_id, reach, link, g.object_link,
                                               physicsClientId=g.client._client)]
