@@ -1,4 +1,4 @@
-"""The induced-failure probe on the real NeedlePick scene: it disables exactly one attempt, the first near the needle."""
+"""The induced-failure probe on the real NeedlePick scene: it disables exactly one attempt, the first one."""
 
 from __future__ import annotations
 

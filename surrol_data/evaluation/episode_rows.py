@@ -1,7 +1,7 @@
 """One evaluation episode as one row: what ``eval_episodes.csv`` and the report's evaluation files hold per episode.
 
-The proficiency metrics a report pools (success at the last step and at any step, steps to success — −1 if never —,
-path, jaw closures, failed grasps, drops, idle time) and the attempt measure's counts and outcome
+The proficiency metrics a report pools (success at the last step and at any step, steps to success — −1 if
+never —, path, jaw closures, failed grasps, drops, idle time) and the attempt measure's counts and outcome
 (:mod:`surrol_data.datasets.attempts`; absent where the task has no grasp record or grasp point).
 """
 

@@ -56,8 +56,8 @@ class InducedFailure(gym.Wrapper):
             raise ValueError(f"{type(base).__name__} has no single grasp to disable; the induced-failure probe is for "
                              "one-arm tasks that grasp an object (e.g. NeedlePick)")
         if env.observation_space["observation"].shape[0] != ONE_ARM_OBJECT_OBS_DIM:
-            raise ValueError(f"{type(base).__name__}'s observation has no grasp point: the induced-failure probe is for "
-                             "one-arm tasks that grasp an object (e.g. NeedlePick)")
+            raise ValueError(f"{type(base).__name__}'s observation has no grasp point: the induced-failure probe is "
+                             "for one-arm tasks that grasp an object (e.g. NeedlePick)")
         self._grasp = grasp
         self._passing = False             # the blades' collisions with the object are off
         self.record = ProbeRecord()

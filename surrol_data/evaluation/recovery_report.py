@@ -146,5 +146,6 @@ PROBE_DEFINITION = (
     "The paper's observation as an experiment: each report epoch's actor plays fresh episodes in which its first "
     "attempt near the needle (a close of at least two steps with a blade within 5 mm of the needle, anywhere on it, "
     "at its start or after its first step) cannot grip: the grip is off and the blades pass through the needle until "
-    "the jaw opens; every later attempt grips as usual. Of the episodes with an attempt so disabled: how many retried (a later such close, or "
-    "one that held the needle), how many retried and the episode ended in success, and how many stalled.")
+    "the jaw opens; every later attempt grips as usual. Of the episodes with an attempt so disabled: how many "
+    "retried (a later such close, or one that held the needle), how many retried and the episode ended in success, "
+    "and how many stalled.")
