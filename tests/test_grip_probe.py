@@ -69,26 +69,41 @@ def test_the_oracle_never_retries_so_the_probe_makes_it_stall(env):
     assert trajectory_attempts(plain).outcome is Outcome.FIRST_HELD and plain.final_success
 
 
-def test_a_flicker_near_the_needle_does_not_spend_the_probe(env):
-    base = env.unwrapped
+def test_a_close_away_from_the_needle_does_not_spend_the_probe(env):
     oracle = RetryingOracle(env)
-    flickered = []
+    closed = []
 
-    def flicker_first(obs):   # the oracle, with one one-step close at the grasp point before its real one
+    def close_first(obs):   # the oracle, after two steps with the jaw closed where the episode starts (cm away)
+        if len(closed) < 2:
+            closed.append(True)
+            return np.array([0.0, 0.0, 0.0, 0.0, -1.0], np.float32)
+        return oracle(obs)
+
+    traj = rollout(env, close_first, 0)
+    probe, record = env.env.record, trajectory_attempts(traj)
+    assert env.disabled[:2] == [True, True]           # (a close far away could not grip anyway)
+    assert probe.spent and probe.disabled_from == record.attempts[0].start > 2
+    assert record.attempts[0].failed and record.outcome is Outcome.RECOVERED
+
+
+def test_a_one_step_close_at_the_needle_spends_the_probe(env):
+    """A trained policy may grasp by closing for one step and keeping the jaw closed only if it gripped."""
+    oracle = RetryingOracle(env)
+    done = []
+
+    def one_step_first(obs):
         action = oracle(obs)
-        if action[4] < 0 and not flickered:
-            flickered.append(True)
+        if action[4] < 0 and not done:
+            done.append(True)
             return action
-        if flickered and len(flickered) == 1:
-            flickered.append(True)
+        if len(done) == 1:   # reopen after one step, then let the oracle go on (it closes again)
+            done.append(True)
             return np.concatenate([action[:4], [1.0]]).astype(np.float32)
         return action
 
-    traj = rollout(env, flicker_first, 0)
-    assert base.grasp is env.env._grasp
-    probe, record = env.env.record, trajectory_attempts(traj)
-    assert probe.spent and probe.disabled_from == record.attempts[0].start > 0
-    assert record.attempts[0].failed and record.outcome is Outcome.RECOVERED
+    rollout(env, one_step_first, 0)
+    probe = env.env.record
+    assert probe.spent and probe.disabled_steps == 1 and probe.retries >= 1
 
 
 def test_tasks_without_one_grasp_are_refused():

@@ -11,11 +11,13 @@ object (or at the next close). A close away from the object could not grip anywa
 the first attempt, rather than those that start near, catches the policies that close while still descending and
 grip within that first action (the committed script policy, 6 of 10 episodes with a 1 cm arming radius).
 
-The probe is spent on the first close that is an attempt: at least :data:`ATTEMPT_MIN_STEPS` actions, the measured
-jaw closing, a blade within :data:`NEAR_M` of the object — anywhere on it: trained policies grip the needle 6–26 mm
-from the mid-arc point the attempt measure's grasp point is — at its start or after its first action. Every later
-close grips as usual, so exactly one attempt is disabled; the later closes that are attempts by the same rule, or
-that hold the object, are its retries (:attr:`ProbeRecord.retries`).
+The probe is spent on the first close near the object: the measured jaw closing, a blade within :data:`NEAR_M` of
+the object — anywhere on it: trained policies grip the needle 6–26 mm from the mid-arc point the attempt measure's
+grasp point is — at its start or after its first action. Unlike the attempt measure's rule it takes one-step
+closes: the committed script policy grasps by closing for one step and reopening unless it gripped, so under a
+two-step rule it never spent the probe and every grasp it tried was disabled. Every later close grips as usual, so
+exactly one close near the object is disabled; the later closes near it, or that hold it, are its retries
+(:attr:`ProbeRecord.retries`).
 
 Each step's info says whether the grip was disabled (``grip_disabled``); after the episode
 :attr:`InducedFailure.record` gives the step the disabled attempt began and whether a grip was prevented.
@@ -23,12 +25,13 @@ Each step's info says whether the grip was disabled (``grip_disabled``); after t
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import gymnasium as gym
 import numpy as np
 
-from surrol_data.datasets.attempts import ATTEMPT_MIN_STEPS, JAW_CLOSING_RAD, NEAR_M, ONE_ARM_OBJECT_OBS_DIM
+from surrol_data.datasets.attempts import JAW_CLOSING_RAD, NEAR_M, ONE_ARM_OBJECT_OBS_DIM
 from surrol_data.envs.physics import pb
 from surrol_data.envs.psm import JAW_JOINTS
 from surrol_data.envs.units import SCALING
@@ -42,7 +45,7 @@ class ProbeRecord:
     prevented_grip: bool = False  # the blades met the object between them during the disabled attempt (it would
     #                               have gripped; False: it closed beside the object anyway)
     spent: bool = False           # one attempt was disabled; the grip is as usual from then on
-    retries: int = 0              # attempts after the disabled one (closes near the object, or that held)
+    retries: int = 0              # closes near the object after the disabled one (or that held it)
 
 
 class InducedFailure(gym.Wrapper):
@@ -112,7 +115,8 @@ class InducedFailure(gym.Wrapper):
         """A close ended (the jaw command opened, or the episode ended). The disabled one spends the probe if it was
         an attempt; a later one that held, or was an attempt, is a retry."""
         c, self._close = self._close, None
-        attempt = c["steps"] >= ATTEMPT_MIN_STEPS and c["jaw"] - c["min_jaw"] >= JAW_CLOSING_RAD and c["near"]
+        # (no least length: a trained policy's grasp may be a one-step close that it holds only if it gripped)
+        attempt = c["jaw"] - c["min_jaw"] >= JAW_CLOSING_RAD and c["near"]
         if c["disabled"]:
             self._enable()
             if attempt:
@@ -126,13 +130,29 @@ class InducedFailure(gym.Wrapper):
         """How far (real metres) the nearer blade is from the object, up to NEAR_M (inf beyond)."""
         g = self._grasp
         reach = NEAR_M * SCALING
-        found = [p[8] for link in JAW_JOINTS
-                 for p in pb.getClosestPoints(g.psm.body, g.object_id, reach, link, g.object_link,
-                                              physicsClientId=g.client._client)]
+        with self._colliding():
+            found = [p[8] for link in JAW_JOINTS
+                     for p in pb.getClosestPoints(g.psm.body, g.object_id, reach, link, g.object_link,
+                                                  physicsClientId=g.client._client)]
         return max(min(found), 0.0) / SCALING if found else float("inf")
 
+    @contextmanager
+    def _colliding(self):
+        """The blades' collision filter as built while PyBullet is asked about them: its closest-point queries
+        honour the filter, so blades passing through the object would read as far from it."""
+        passing = self._passing
+        if passing:
+            self._collide(True)
+        try:
+            yield
+        finally:
+            if passing:
+                self._collide(False)
+
     def _blocked(self) -> bool:
-        if type(self._grasp).between_blades(self._grasp) and self._close is not None:
+        with self._colliding():
+            between = type(self._grasp).between_blades(self._grasp)
+        if between and self._close is not None:
             self._close["prevented"] = True
         return False
 
