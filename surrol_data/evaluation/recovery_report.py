@@ -134,9 +134,9 @@ PROBE_COLUMNS = (Column("source", "Source"), Column("epoch", "Epoch"), Column("s
 ATTEMPT_DEFINITION = (
     "An attempt is a close of the jaw (command < 0) of at least two steps, with the measured jaw closing, that starts "
     "with the tool tip within 5 mm of the needle's grasp point (its mid-arc point, not its centre), or any close that "
-    "held the needle; jaw flicker away from the needle is no attempt (nor is a close that misses the needle away from "
-    "its mid-arc point: the policies here grip it up to 26 mm from that point, so a miss there goes uncounted; the "
-    "probe below measures the blades' distance to the whole needle). It failed when the needle was never held, or "
+    "held the needle; jaw flicker away from the needle is no attempt (nor is a miss away from its mid-arc point or a "
+    "one-step close: policies here grip the needle up to 26 mm from that point, some by one-step closes, so such "
+    "misses go uncounted; the probe below has neither blind spot). It failed when the needle was never held, or "
     "was lost before a 5 mm lift. An attempt after a failed one is a retry; an episode whose first attempt failed and "
     "that never retried stalled. First attempt held: of the episodes with an attempt; retried, recovered (retried and "
     "the episode ended in success) and stalled: of the episodes whose first attempt failed. Pooled over seeds: the "
@@ -144,8 +144,8 @@ ATTEMPT_DEFINITION = (
     "epoch's actor on fresh episodes; `per-epoch`: the training's own evaluation at that epoch.")
 PROBE_DEFINITION = (
     "The paper's observation as an experiment: each report epoch's actor plays fresh episodes in which its first "
-    "attempt near the needle (a close of at least two steps with a blade within 5 mm of the needle, anywhere on it, "
-    "at its start or after its first step) cannot grip: the grip is off and the blades pass through the needle until "
-    "the jaw opens; every later attempt grips as usual. Of the episodes with an attempt so disabled: how many "
+    "close near the needle (the jaw closing with a blade within 5 mm of the needle, anywhere on it, at the close's "
+    "start or after its first step) cannot grip: the grip is off and the blades pass through the needle until "
+    "the jaw opens; every later close grips as usual. Of the episodes with a close so disabled: how many "
     "retried (a later such close, or one that held the needle), how many retried and the episode ended in success, "
     "and how many stalled.")
