@@ -4,6 +4,10 @@
     python benchmarks/train_speed.py --runs runs/NeedlePick/ddpgbc/script/seed*   # only summarise finished runs
     python benchmarks/train_speed.py --protocol paper --epochs 3  # the batched path on the paper's 12-run study
     python benchmarks/train_speed.py --protocol paper --study docs/results/table1   # cost of the study's finished runs
+    python benchmarks/train_speed.py --protocol paper --actors-from docs/results/table1 --epochs 1 --cycles 2 \
+        --offline-steps 0     # the CPU of an epoch per phase, on the step mix of the study's learned policies
+    python benchmarks/train_speed.py --compare-learning docs/results/table1/runs/expert runs/after/expert
+                              # success at epochs 50, 100 of two sets of seeds within each other's intervals
     python benchmarks/train_speed.py --protocol paper --threads-ab --no-floor --epochs 3 --cycles 5 \
         --offline-steps 50 -- experiment.eval_episodes=4      # learner at 1 thread vs widening to idle cores
 
@@ -271,6 +275,122 @@ def study_cost(study: Path, console: Console, cores: int) -> None:
                   f"each)")
 
 
+def cpu_breakdown(console: Console, timed: list, m: int, s, s_full, full_epochs: int) -> dict:
+    """Where one protocol epoch's CPU goes, per run (medians of the timed epochs, in CPU seconds: valid on a
+    shared machine): the env workers' training episodes and evaluation episodes, the learner's updates and the rest
+    of its work (episodes into the buffers, normalisers, policy snapshots, scoring, checkpoints); shortened epochs
+    scaled to the protocol's cycles. And the CPU hours of one run of ``full_epochs`` epochs at that rate."""
+    scale = s_full.cycles / s.cycles
+    train_steps = s.cycles * s.episodes_per_cycle * s.max_episode_steps
+    phases = {"env: training episodes": [], "env: evaluation episodes": [], "learner: updates": [],
+              "learner: other": []}
+    for r, _ in timed:
+        collect = r["time_cpu_envs_s"] - r["time_cpu_envs_eval_s"]
+        phases["env: training episodes"].append(collect * scale / m)
+        phases["env: evaluation episodes"].append(r["time_cpu_envs_eval_s"] / m)
+        phases["learner: updates"].append(r["time_cpu_learner_update_s"] * scale / m)
+        phases["learner: other"].append((r["time_cpu_learner_s"] - r["time_cpu_learner_update_s"]) * scale / m)
+    med = {k: statistics.median(v) for k, v in phases.items()}
+    total = sum(med.values())
+    table = Table(title=f"CPU of one protocol epoch per run ({m} runs batched; medians of {len(timed)} epochs, "
+                        f"{s.cycles} of {s_full.cycles} cycles scaled)")
+    for c in ("phase", "CPU s per run-epoch", "share", "per unit"):
+        table.add_column(c, justify="right" if c != "phase" else "left")
+    units = {"env: training episodes": (s_full.cycles * s_full.episodes_per_cycle * s_full.max_episode_steps, "step"),
+             "env: evaluation episodes": (s_full.eval_episodes * s_full.max_episode_steps, "step"),
+             "learner: updates": (s_full.cycles * s_full.updates_per_cycle, "update")}
+    for k, v in med.items():
+        n, unit = units.get(k, (None, ""))
+        table.add_row(k, f"{v:.2f}", f"{v / total:.0%}", f"{v / n * 1e3:.2f} ms per {unit}" if n else "")
+    table.add_row("total", f"{total:.2f}", "100%", f"-> {full_epochs * total / 3600:.2f} CPU h per run "
+                                                   f"({full_epochs} epochs)")
+    console.print(table)
+    console.print(f"(env CPU per step here: {train_steps} training steps per shortened epoch; the step mix is this "
+                  f"run's policies', not the study's learned ones)")
+    return med
+
+
+def start_from_policies(study: Path, jobs: list) -> None:
+    """Every member starts its online phase from the policy the study's run of the same source and seed learned
+    (``<study>/runs/<source>/seed<k>/policy.pt``: actor and normalisers), so that the epochs timed play the step
+    mix of learned policies (mostly a held needle at the goal) instead of a fresh BC actor's. The critics start
+    fresh: what an update costs does not depend on the weights."""
+    import torch
+
+    from surrol_data.algos.ensemble import EnsembleDDPG
+
+    paths = [study / "runs" / Path(cfg.run_dir).parent.name / Path(cfg.run_dir).name / "policy.pt" for cfg in jobs]
+    missing = [str(p) for p in paths if not p.is_file()]
+    if missing:
+        sys.exit(f"--actors-from {study}: no learned policy at {', '.join(missing)}")
+    saved = [torch.load(p, map_location="cpu", weights_only=True) for p in paths]
+    finish = EnsembleDDPG.finish_pretraining
+
+    def load_then_finish(self) -> None:
+        for i, ckpt in enumerate(saved):
+            self.actor.load_member_state(i, ckpt["actor"])
+            self.inputs[i].obs_norm.load_state_dict(ckpt["obs_norm"])
+            self.inputs[i].goal_norm.load_state_dict(ckpt["goal_norm"])
+        finish(self)
+
+    EnsembleDDPG.finish_pretraining = load_then_finish
+
+
+def run_groups(folder: Path) -> dict[str, list[Path]]:
+    """The run folders under ``folder`` by demo source: a study's (``runs/<source>/seed<k>/``), one source's
+    (``<source>/seed<k>/``, e.g. ``docs/results/table1/runs/expert``), or a folder of sources' folders."""
+    if (folder / "runs").is_dir():
+        folder = folder / "runs"
+    direct = sorted(p.parent for p in folder.glob("*/metrics.jsonl"))
+    if direct:
+        return {folder.name: direct}
+    groups = {}
+    for p in sorted(folder.glob("*/*/metrics.jsonl")):
+        groups.setdefault(p.parent.parent.name, []).append(p.parent)
+    return groups
+
+
+def compare_learning(a: Path, b: Path, epochs: list[int], console: Console) -> bool:
+    """Success at ``epochs`` of the runs under ``a`` (before) and ``b`` (after), per demo source: mean ± std over
+    seeds with the bootstrap 95 % interval of the mean (the study report's); the two agree where each mean lies
+    within the other's interval. Returns whether they agree everywhere (a source or epoch missing on one side
+    does not)."""
+    from surrol_data.algos.train import read_metrics
+    from surrol_data.evaluation.metrics import estimate
+
+    groups = {side: run_groups(folder) for side, folder in (("A", a), ("B", b))}
+    for side, folder in (("A", a), ("B", b)):
+        if not groups[side]:
+            sys.exit(f"--compare-learning: no run folders (<source>/seed<k>/metrics.jsonl) under {folder}")
+    if len(groups["A"]) == 1 and len(groups["B"]) == 1:   # one source each: compare them whatever their names
+        label = " vs ".join(dict.fromkeys(next(iter(g)) for g in groups.values()))
+        groups = {side: {label: next(iter(g.values()))} for side, g in groups.items()}
+    table = Table(title=f"learning before (A: {a}) and after (B: {b}): success rate, mean ± std over seeds "
+                        f"[bootstrap 95 % interval]")
+    for col in ("source", "epoch", "A", "B", "within each other's interval"):
+        table.add_column(col, justify="left" if col == "source" else "right")
+    agree = True
+    for source in sorted(set(groups["A"]) | set(groups["B"])):
+        runs = {side: groups[side].get(source, []) for side in ("A", "B")}
+        rows = {side: [{r["epoch"]: r["success_rate"] for r in read_metrics(d)} for d in runs[side]]
+                for side in runs}
+        for epoch in epochs:
+            est, cells = {}, {}
+            for side in ("A", "B"):
+                values = [r[epoch] for r in rows[side] if epoch in r]
+                est[side] = estimate(values) if values else None
+                e = est[side]
+                cells[side] = ("-" if e is None else
+                               f"{e.mean:.3f} ± {e.std:.3f} [{e.ci_low:.3f}, {e.ci_high:.3f}] ({e.n} seeds)")
+            ea, eb = est["A"], est["B"]
+            ok = (ea is not None and eb is not None and ea.n > 1 and eb.n > 1
+                  and eb.ci_low <= ea.mean <= eb.ci_high and ea.ci_low <= eb.mean <= ea.ci_high)
+            agree &= ok
+            table.add_row(source, str(epoch), cells["A"], cells["B"], "yes" if ok else "NO")
+    console.print(table)
+    return agree
+
+
 def paper_protocol(args, console: Console) -> None:
     import resource
 
@@ -321,6 +441,8 @@ def paper_protocol(args, console: Console) -> None:
     if args.threads_ab:
         threads_ab(console, jobs, args)
         return
+    if args.actors_from:
+        start_from_policies(args.actors_from, jobs)
     cpu0, kids0, t0 = time.process_time(), resource.getrusage(resource.RUSAGE_CHILDREN), time.perf_counter()
     import inspect
 
@@ -404,6 +526,9 @@ def paper_protocol(args, console: Console) -> None:
                       f"({m} runs x {full_epochs} epochs): {full_epochs * epoch_phases / 3600:.2f} h with this path's "
                       f"phases ({epoch_phases:.0f} s per epoch); {full_epochs * epoch_ideal / 3600:.2f} h if all "
                       f"{cores} cores were busy all the time")
+    phased = [(r, p) for r, p in timed if "time_cpu_envs_eval_s" in r and "time_cpu_learner_update_s" in r]
+    if phased:
+        cpu_breakdown(console, phased, m, s, s_full, full_epochs)
     if single_rows:
         online = [r for r in single_rows if r["epoch"] > 0]
         walls = [b["wall_s"] - a["wall_s"] for a, b in zip(single_rows, single_rows[1:])]
@@ -435,6 +560,9 @@ def main() -> None:
     parser.add_argument("--offline-steps", type=int, default=None, help="--protocol paper: BC pre-training steps")
     parser.add_argument("--worker-nice", type=int, default=0, help="--protocol paper: the env workers' niceness")
     parser.add_argument("--no-floor", action="store_true", help="--protocol paper: skip the compute-floor table")
+    parser.add_argument("--actors-from", type=Path,
+                        help="--protocol paper: start every run from the policy this study's run of the same source "
+                             "and seed learned (e.g. docs/results/table1): time the step mix of learned policies")
     parser.add_argument("--threads-ab", action="store_true",
                         help="--protocol paper: only compare the learner at fixed threads with widening to idle cores")
     parser.add_argument("--ab-rounds", type=int, default=2, help="--threads-ab: rounds of A then B")
@@ -445,10 +573,16 @@ def main() -> None:
     parser.add_argument("--study", type=Path, help="--protocol paper: the cost of this study's finished runs "
                                                    "(e.g. docs/results/table1) instead of training")
     parser.add_argument("--cores", type=int, default=2, help="--study: cores for the projected study time")
+    parser.add_argument("--compare-learning", type=Path, nargs=2, metavar=("RUNS_A", "RUNS_B"),
+                        help="compare the success of two sets of runs (a study folder, or one source's seed folders) "
+                             "at --at epochs; exit 1 unless each mean lies within the other's bootstrap interval")
+    parser.add_argument("--at", type=int, nargs="+", default=[50, 100], help="--compare-learning: epochs")
     args, overrides = parser.parse_known_args()
     overrides = [o for o in overrides if o != "--"]
     args.overrides = overrides
     console = Console(width=160)
+    if args.compare_learning:
+        sys.exit(0 if compare_learning(*args.compare_learning, args.at, console) else 1)
     if args.protocol == "paper" and args.study:
         study_cost(args.study, console, args.cores)
         return

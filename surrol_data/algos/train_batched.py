@@ -195,9 +195,10 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
     cpu = {"learner": time.process_time(), "envs": pool.worker_cpu_seconds()}
 
     def finish_epoch(extras: list[dict], started: float) -> None:
-        t_eval = time.perf_counter()
+        t_eval, envs_before_eval = time.perf_counter(), pool.worker_cpu_seconds()
         scores, episode_rows = _evaluate(pool, learner, s.eval_episodes, s.max_episode_steps, per_member_envs)
         eval_s = time.perf_counter() - t_eval
+        eval_cpu = pool.worker_cpu_seconds() - envs_before_eval
         elapsed = time.perf_counter() - started
         # CPU seconds of this process (learner) and of the env workers in the epoch: with the wall time they
         # say how busy the cores were, which a wall clock on a shared machine cannot
@@ -210,6 +211,7 @@ def train_batched(cfgs: list[TrainConfig], overlap: bool = True, n_workers: int 
             row["time_eval_s"] = round(eval_s, 3)
             row["time_cpu_learner_s"] = round(used["learner"], 3)
             row["time_cpu_envs_s"] = round(used["envs"], 3)
+            row["time_cpu_envs_eval_s"] = round(eval_cpu, 3)   # (of time_cpu_envs_s: the evaluation's share)
             m.state["wall_s"] += elapsed  # the ensemble's epoch: every member waited for all of it
             row["wall_s"] = round(m.state["wall_s"], 3)
             row["batched_members"] = len(members)   # the epoch's CPU seconds are the whole ensemble's
@@ -284,16 +286,17 @@ def _online_epoch(members: list[_Member], learner: EnsembleDDPG, pool: EnvPool, 
     per_member = s.episodes_per_cycle
     train_success = [[] for _ in members]
     metrics: list[list[dict]] = [[] for _ in members]
-    timing = {"collect": 0.0, "update": 0.0}
+    timing = {"collect": 0.0, "update": 0.0, "update_cpu": 0.0}
 
     def run_updates(n: int) -> None:
-        t = time.perf_counter()
+        t, cpu = time.perf_counter(), time.process_time()
         for _ in range(n):
             for i, row in enumerate(threads.timed(learner.update, replays, demo_buffers)):
                 metrics[i].append(row)
         for m in members:
             m.state["updates"] += n
         timing["update"] += time.perf_counter() - t
+        timing["update_cpu"] += time.process_time() - cpu
 
     owed = 0  # updates earned by the last collected cycle, not yet run
     for _ in range(s.cycles):
@@ -327,7 +330,9 @@ def _online_epoch(members: list[_Member], learner: EnsembleDDPG, pool: EnvPool, 
     out = []
     for i in range(len(members)):
         row = {"train_success_rate": float(np.mean(train_success[i])),
-               "time_collect_s": round(timing["collect"], 3), "time_update_s": round(timing["update"], 3)}
+               "time_collect_s": round(timing["collect"], 3), "time_update_s": round(timing["update"], 3),
+               # (of the epoch's time_cpu_learner_s: the updates' share, all the learner's threads)
+               "time_cpu_learner_update_s": round(timing["update_cpu"], 3)}
         for key in (metrics[i][0] if metrics[i] else {}):
             row[key] = float(np.mean([r[key] for r in metrics[i] if key in r]))
         out.append(row)
