@@ -111,7 +111,10 @@ def test_append_or_merge_across_renderers_is_refused(collected, tmp_path):
 
 
 @needs_gl
-@pytest.mark.parametrize("parallel", [["--workers", "2"], ["--shards", "2"]], ids=["workers", "shards"])
+# --shards (slow: two fresh shard processes, each importing lerobot and Panda3D, ~25 s of CPU) hands the renderer to
+# its processes in the same collect keywords that --workers (the fast case) does.
+@pytest.mark.parametrize("parallel", [["--workers", "2"], pytest.param(["--shards", "2"], marks=pytest.mark.slow)],
+                         ids=["workers", "shards"])
 def test_parallel_collection_draws_with_the_chosen_renderer(collected, tmp_path, parallel):
     out = _collect(tmp_path / "parallel", "--renderer", "panda3d", *parallel)
     assert _renderer(out) == "panda3d"
