@@ -16,6 +16,20 @@ def pytest_configure(config):
     config.addinivalue_line("markers", "browser: needs headless Chromium (apt-get install chromium); skips without it")
 
 
+@pytest.fixture(scope="session")
+def table1_quick_partial(tmp_path_factory) -> Path:
+    """table1_quick (3 sources × 2 seeds, tiny), its first two runs (script/0, novice/0) trained by `surrol-data
+    study table1_quick --next 2`: made once per session, read (never written) by the study and notebook tests."""
+    from typer.testing import CliRunner
+
+    from surrol_data.cli import app
+
+    out = tmp_path_factory.mktemp("study") / "table1_quick"
+    result = CliRunner().invoke(app, ["study", "table1_quick", "--out", str(out), "--next", "2"])
+    assert result.exit_code == 0, result.output
+    return out
+
+
 _WINDOW_TASKS = ("hand", "leave", "scripted-trainee")   # the names the GUI tests give the window tasks that drive a session
 
 

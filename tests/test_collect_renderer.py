@@ -110,16 +110,36 @@ def test_append_or_merge_across_renderers_is_refused(collected, tmp_path):
     assert not (tmp_path / "mixed").exists()
 
 
-@needs_gl
-@pytest.mark.parametrize("parallel", [["--workers", "2"], ["--shards", "2"]], ids=["workers", "shards"])
-def test_parallel_collection_draws_with_the_chosen_renderer(collected, tmp_path, parallel):
-    out = _collect(tmp_path / "parallel", "--renderer", "panda3d", *parallel)
+def _drawn_as_in_one_process(out: Path, collected: dict) -> None:
     assert _renderer(out) == "panda3d"
     single = collected["panda3d"]
     for ep in range(2):
         seed = int(DatasetReader(out).episodes["seed"].iloc[ep])
         assert seed == int(DatasetReader(single).episodes["seed"].iloc[ep])
         assert np.abs(_first_frame(out, ep) - _first_frame(single, ep)).mean() < 1.0, f"episode {ep} (seed {seed})"
+
+
+@needs_gl
+# --shards is slow here (two fresh shard processes, each importing lerobot and Panda3D: ~25 s of CPU); the test after
+# this one checks the same in one process, and test_collect_workers' [shards] case the shard processes.
+@pytest.mark.parametrize("parallel", [["--workers", "2"], pytest.param(["--shards", "2"], marks=pytest.mark.slow)],
+                         ids=["workers", "shards"])
+def test_parallel_collection_draws_with_the_chosen_renderer(collected, tmp_path, parallel):
+    _drawn_as_in_one_process(_collect(tmp_path / "parallel", "--renderer", "panda3d", *parallel), collected)
+
+
+@needs_gl
+def test_every_shard_draws_with_the_chosen_renderer(collected, tmp_path, monkeypatch):
+    """`collect --shards 2 --renderer panda3d` with each shard recorded by the function a shard process runs, here
+    rather than in a process pool: the renderer reaches every shard and the merged dataset."""
+    from surrol_data.collect import shards
+
+    def here(items, progress, say):
+        for item in items:
+            shards.record_shard(*item)
+
+    monkeypatch.setattr(shards, "_locally", here)
+    _drawn_as_in_one_process(_collect(tmp_path / "shards", "--renderer", "panda3d", "--shards", "2"), collected)
 
 
 @needs_gl

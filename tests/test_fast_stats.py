@@ -3,10 +3,17 @@ dtypes and shapes, on the columns an episode holds and on degenerate ones (const
 
 import numpy as np
 import pytest
-from lerobot.datasets.compute_stats import compute_episode_stats
 
 from surrol_data.datasets.fast_stats import episode_stats
 from surrol_data.datasets.lerobot_compat import same_stats
+
+
+def compute_episode_stats(episode, features):
+    """lerobot's own statistics. Imported here, not at the top, so that collecting the suite does not pay for
+    lerobot's import (~10 s of CPU: torchvision, diffusers); the tests that record datasets import it anyway."""
+    from lerobot.datasets.compute_stats import compute_episode_stats as theirs
+
+    return theirs(episode, features)
 
 
 def _episode(rng, T):

@@ -116,18 +116,35 @@ def test_the_experiment_runs_end_to_end_and_reports_success_against_human_frames
     assert "data:image/png;base64" in html and TASK in html
 
 
+def _rows(folder, seeds=(0, 1)):
+    """What was measured, per row (the CPU seconds it took differ run to run)."""
+    return sorted(json.dumps({k: v for k, v in row.items() if not k.endswith("cpu_s")}, sort_keys=True)
+                  for row in map(json.loads, (folder / "results.jsonl").read_text().splitlines())
+                  if row["seed"] in seeds)
+
+
+def test_a_cell_in_a_worker_process_gives_the_rows_it_gives_in_process(experiment, tmp_path):
+    """--workers > 1 runs each cell in a spawned process: one cell (seed 1) there gives the in-process rows. (Two
+    cells in two processes at once, appending to one results.jsonl: the slow test below.)"""
+    out, args, _ = experiment
+    worker = tmp_path / "worker"
+    args = [worker if a == out else "experiment.interventions.seeds=[1]" if str(a).endswith("seeds=[0,1]") else a
+            for a in args]
+    assert "experiment.interventions.seeds=[1]" in args
+    result, text = _invoke([*args, "--workers", 2])
+    assert result.exit_code == 0, result.output
+    assert f"{TASK} seed 1: done" in text and f"{TASK} seed 0" not in text
+    assert _rows(worker) == _rows(out, seeds=(1,)) and _rows(worker)
+
+
+@pytest.mark.slow
 def test_cells_in_parallel_processes_give_the_same_rows(experiment, tmp_path):
     out, args, _ = experiment
     parallel = tmp_path / "parallel"
     result, text = _invoke([*[parallel if a == out else a for a in args], "--workers", 2])
     assert result.exit_code == 0, result.output
     assert f"{TASK} seed 0: done" in text and f"{TASK} seed 1: done" in text
-
-    def rows(folder):   # what was measured; the CPU seconds it took differ run to run
-        return sorted((json.dumps({k: v for k, v in json.loads(line).items() if not k.endswith("cpu_s")},
-                                  sort_keys=True) for line in (folder / "results.jsonl").read_text().splitlines()))
-
-    assert rows(parallel) == rows(out)
+    assert _rows(parallel) == _rows(out)
 
 
 def test_a_rerun_continues_and_redoes_nothing_and_another_config_is_refused(experiment):

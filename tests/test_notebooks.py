@@ -1,15 +1,12 @@
 """The notebooks in notebooks/ run top to bottom: each is executed headless (nbclient, a python3 kernel) in a temporary
 copy at SURROL_NOTEBOOK_SIZE=small, with what it writes going to a temporary folder; a cell that raises fails the
-test. Notebook 03 reads a tiny table1_quick study made here with the study command, so it goes through the real
+test. Notebook 03 reads a tiny table1_quick study made with the study command (conftest), so it goes through the real
 records, and once more a folder without runs, where it must say so. The committed notebooks must carry their
 outputs (they are what GitHub shows) and stay small."""
 
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -49,15 +46,11 @@ def execute(name: str, tmp_path: Path, monkeypatch, **env: str) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def quick_study(tmp_path_factory) -> Path:
-    """A two-run table1_quick study (script/0, novice/0), made by the study command as a user would."""
-    out = tmp_path_factory.mktemp("table1_quick")
-    done = subprocess.run([sys.executable, "-m", "surrol_data.cli", "study", "table1_quick", "--out", str(out),
-                           "--next", "2"], cwd=REPO, capture_output=True, text=True, timeout=600,
-                          env={**os.environ, "PYTHONUNBUFFERED": "1"})
-    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
-    assert len(list((out / "runs").rglob("metrics.jsonl"))) == 2
-    return out
+def quick_study(table1_quick_partial) -> Path:
+    """A two-run table1_quick study (script/0, novice/0), made by the study command as a user would (conftest: one
+    per session, shared with test_study_runs)."""
+    assert len(list((table1_quick_partial / "runs").rglob("metrics.jsonl"))) == 2
+    return table1_quick_partial
 
 
 @pytest.mark.timeout(900)

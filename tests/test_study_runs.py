@@ -91,16 +91,10 @@ def test_first_grasp_failed_and_recovery_inputs():
 
 
 @pytest.fixture(scope="module")
-def partial_study(tmp_path_factory):
-    """table1_quick (3 sources × 2 seeds, tiny), its first two runs trained by `study --next 2`."""
-    from typer.testing import CliRunner
-
-    from surrol_data.cli import app
-
-    out = tmp_path_factory.mktemp("study") / "table1_quick"
-    result = CliRunner().invoke(app, ["study", "table1_quick", "--out", str(out), "--next", "2"])
-    assert result.exit_code == 0, result.output
-    return out
+def partial_study(table1_quick_partial):
+    """table1_quick (3 sources × 2 seeds, tiny), its first two runs trained by `study --next 2` (conftest: one per
+    session, shared with the notebook test that reads it)."""
+    return table1_quick_partial
 
 
 def test_a_partial_study_commits_run_folders_and_a_report_marked_partial(partial_study):
