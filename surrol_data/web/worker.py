@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import io
 import time
+import traceback
 from multiprocessing.connection import Connection
 
 import gymnasium as gym
@@ -164,6 +165,11 @@ class SessionWorker:
                 timeout_needs_save=True, episode_sink=self._record)
         except RecordFailed as e:
             self.send("status", f"not saved: {e}")
+        except (PipeClosed, KeyboardInterrupt):
+            raise
+        except Exception as e:   # the page hears why; the traceback goes to the server's log; play may start again
+            traceback.print_exc()
+            self.send("status", f"the session stopped: {type(e).__name__}: {e}")
         finally:
             self.in_session = False
             self._drop_camera()
