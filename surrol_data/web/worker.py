@@ -207,8 +207,15 @@ class SessionWorker:
         if self._camera_client is not client:
             self._drop_camera()
             self._endoscope = EnvEndoscope(env)
-            self._camera = make_camera(client, self.size, scene_scale=self._endoscope.scene_scale,
-                                       renderer=self.renderer)
+            try:
+                self._camera = make_camera(client, self.size, scene_scale=self._endoscope.scene_scale,
+                                           renderer=self.renderer)
+            except (ImportError, RuntimeError) as e:   # no Panda3D or no EGL here: TinyRenderer draws everywhere
+                if self.renderer == "tiny":
+                    raise
+                self.send("status", f"the view is drawn by TinyRenderer ({self.renderer}: {e})")
+                self.renderer = "tiny"
+                self._camera = make_camera(client, self.size, scene_scale=self._endoscope.scene_scale)
             self._camera_client = client
         return self._camera.render(self._endoscope.pose()).rgb
 
