@@ -205,10 +205,10 @@ def test_an_operator_in_chromium_moves_the_tool_and_saves_an_episode_with_proven
         assert page.js("document.querySelectorAll('#tasks li').length") == 2
         assert page.js("localStorage.getItem('surrol.operator')") == "resident07"
         play(page)
-        hold(page, "s", 4)   # down in the image: the tool comes down into the view
+        hold(page, "s", 3)   # down in the image: the tool comes down into the view
         views = [page.canvas()]
         for _ in range(2):   # left in the image, twice
-            hold(page, "a", 4)
+            hold(page, "a", 3)
             views.append(page.canvas())
         (x0, y0), (x1, _), (x2, _) = tool_centroids(views)
         width = views[0].shape[1]
