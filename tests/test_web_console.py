@@ -186,21 +186,48 @@ def episodes(root: Path):
     return DatasetReader(root).episodes
 
 
+def refused_without_the_token(page, url: str) -> None:
+    """No token, no session: the page's own WebSocket without it (or with a wrong one) never opens, the task list
+    is refused."""
+    page.goto(url.split("?")[0])
+    assert page.js("fetch('/api/tasks').then(r => r.status)") == 403
+    for query in ("", "?token=wrong"):
+        assert page.js(f"new Promise(done => {{ const ws = new WebSocket(`ws://${{location.host}}/ws{query}`);"
+                       "ws.onopen = () => done('opened'); ws.onclose = () => done('refused'); })") == "refused"
+
+
 @pytest.mark.browser
+@needs_chromium
+def test_in_chromium_a_page_without_the_token_gets_nothing_and_the_operator_is_asked_once(tmp_path):
+    with console_server(tmp_path / "class", "NeedleReach", "NeedlePick") as (url, log, _), Chromium() as browser:
+        page = browser.new_page()
+        refused_without_the_token(page, url)
+        page.goto(url)
+        page.wait_for("document.getElementById('who').open")
+        assert page.js("document.querySelectorAll('#tasks li').length") == 2
+        assert page.js("fetch(`/api/tasks/NeedlePick.png`).then(r => r.headers.get('content-type'))") == "image/png"
+        assert page.js("fetch(`/api/tasks/..%2F..%2Fpyproject.toml.png`).then(r => r.status)") == 404
+        page.js("document.getElementById('who-id').value = 'not a valid id!'")
+        page.tap("Enter")   # refused by the form: still asking
+        assert page.js("document.getElementById('who').open and localStorage.getItem('surrol.operator') === null"
+                       .replace(" and ", " && "))
+        page.js("document.getElementById('who-id').value = 'resident07'")
+        page.js("document.getElementById('who-form').requestSubmit()")
+        page.wait_for("localStorage.getItem('surrol.operator') === 'resident07'")
+        page.goto(url)   # the same browser again: not asked again
+        assert page.js("document.getElementById('who').open") is False
+        assert page.js("document.getElementById('who-name').textContent") == "resident07"
+    assert "".join(log).count("refused a connection") == 2
+
+
+@pytest.mark.browser
+@pytest.mark.slow
 @needs_chromium
 def test_an_operator_in_chromium_moves_the_tool_and_saves_an_episode_with_provenance(tmp_path):
     out = tmp_path / "class"
     with console_server(out, "NeedleReach", "NeedlePick") as (url, log, _), Chromium() as browser:
         page = browser.new_page()
-        # No token, no session: the page's own WebSocket without it never opens, the task list is refused.
-        base = url.split("?")[0]
-        page.goto(base)
-        assert page.js("fetch('/api/tasks').then(r => r.status)") == 403
-        assert page.js("new Promise(done => { const ws = new WebSocket(`ws://${location.host}/ws`);"
-                       "ws.onopen = () => done('opened'); ws.onclose = () => done('refused'); })") == "refused"
-        assert page.js("new Promise(done => { const ws = new WebSocket(`ws://${location.host}/ws?token=wrong`);"
-                       "ws.onopen = () => done('opened'); ws.onclose = () => done('refused'); })") == "refused"
-
+        refused_without_the_token(page, url)
         enter_operator(page, url, "resident07", "novice")
         assert page.js("document.querySelectorAll('#tasks li').length") == 2
         assert page.js("localStorage.getItem('surrol.operator')") == "resident07"

@@ -168,6 +168,7 @@ class BrowserSession:
         self.refused = 0
         self.frames_dropped = 0
         self._closed = False
+        self.playing = False   # a session runs in the process (it has an attempt to drop cleanly)
         ctx = multiprocessing.get_context("spawn")   # a fresh interpreter: no server threads or sockets inherited
         self.conn, child = ctx.Pipe()
         self.process = ctx.Process(target=worker_main, name=f"surrol-web-{operator}", daemon=True,
@@ -192,9 +193,13 @@ class BrowserSession:
         while True:
             try:
                 message = self.conn.recv()
-            except (EOFError, OSError):
+            except Exception:   # the process ended (or died mid-message: nothing it sent then was answered)
                 break
             kind = message[0]
+            if kind == "frame":
+                self.playing = bool(message[1]["hud"]["playing"])
+            elif kind == "session_ended":
+                self.playing = False
             if kind == "episode":
                 self.console.writer.submit(message[1]["task"], message[1], lambda answer: self.to_worker(*answer))
                 continue
@@ -274,11 +279,15 @@ class BrowserSession:
             self._refused_logged_at = now
 
     async def stop(self) -> None:
-        """End the process: it drops the attempt in progress (an episode being written is finished first)."""
+        """End the process: in a session it ends the attempt in progress (dropped; an episode it is handing to the
+        writer is handed over first); out of one it has nothing to keep and is stopped at once."""
         if self._closed:
             return
         self._closed = True
-        self.to_worker("quit")
+        if self.playing:
+            self.to_worker("quit")
+        else:
+            self.process.terminate()
         await self.loop.run_in_executor(None, self._join)
         log.info("session of %s (operator %s) ended", self.client, self.operator)
 

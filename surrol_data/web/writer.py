@@ -18,6 +18,7 @@ import gymnasium as gym
 
 from surrol_data.collect.haptic_source import record_episode
 from surrol_data.collect.script_source import features_for, first_seed
+from surrol_data.datasets import lerobot_compat
 from surrol_data.datasets.recorder import DatasetRecorder
 from surrol_data.envs import env_id
 from surrol_data.envs.names import dimension_names
@@ -36,6 +37,9 @@ class EpisodeWriter:
         self._queue: queue.Queue = queue.Queue()
         self._thread = threading.Thread(target=self._run, name="surrol-web-writer", daemon=True)
         self._thread.start()
+        # lerobot imports meanwhile (in a daemon thread: a server stopped before any episode does not wait for it),
+        # so that the first episode saved does not wait for it either.
+        lerobot_compat.import_in_background()
 
     def dataset(self, task: str) -> Path:
         return self.out / task
@@ -50,8 +54,6 @@ class EpisodeWriter:
         self._queue.put((task, record, answer))
 
     def _run(self) -> None:
-        import lerobot.datasets.lerobot_dataset  # noqa: F401  (imported before the first episode waits for it)
-
         while True:
             item = self._queue.get()
             if item is None:
@@ -69,6 +71,7 @@ class EpisodeWriter:
 
     def _recorder(self, task: str) -> DatasetRecorder:
         if task not in self._recorders:
+            lerobot_compat.wait_for_background_import()
             eid = env_id(task)
             env = gym.make(eid)
             try:
