@@ -443,8 +443,9 @@ def serve(out: Path = typer.Option(..., help="Folder for the datasets: OUT/<task
           host: str = typer.Option("127.0.0.1", help="Address to listen on: 127.0.0.1 (this machine only), "
                                    "0.0.0.0 for the network (browsers still need the printed token)."),
           port: int = typer.Option(8765, min=0, max=65535, help="Port (0: a free one)."),
-          token: Optional[str] = typer.Option(None, help="Access token browsers need (default: a new random one, "
-                                              "printed with the address)."),
+          token: Optional[str] = typer.Option(None, envvar="SURROL_DATA_WEB_TOKEN",
+                                              help="Access token browsers need (default: a new random one, printed "
+                                              "with the address); from the environment, it stays out of `ps`."),
           view_size: str = typer.Option("640x480", help="Endoscope view WIDTHxHEIGHT streamed to each browser "
                                         "(at most 1280x960)."),
           renderer: str = typer.Option("auto", help="What draws the view: auto (Panda3D where it can render, "
