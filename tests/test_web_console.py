@@ -156,6 +156,17 @@ def hold(page, key: str, steps: int) -> None:
     page.wait_for(f"window.consoleStats.lastAck >= {released}")   # the view after the release
 
 
+def hold_pad(page, axis: int, value: float, steps: int) -> None:
+    """Hold the page's gamepad stick ``axis`` at ``value`` for ``steps`` session steps (as :func:`hold`)."""
+    for held in (True, False):
+        before = page.js("window.consoleStats.sent")
+        page.js(f"window.fakePad.axes[{axis}] = {value if held else 0}")   # the page polls it every frame
+        page.wait_for(f"window.consoleStats.sent > {before} && window.consoleStats.lastAck >= window.consoleStats.sent")
+        if held:
+            first = page.js("window.consoleStats.hud.step")
+            page.wait_for(f"window.consoleStats.hud.step >= {first + steps - 1}")
+
+
 def play(page) -> None:
     page.js("document.getElementById('play').click()")
     page.wait_for("window.consoleStats.hud && window.consoleStats.hud.playing && window.consoleStats.hud.step > 0")
@@ -245,10 +256,32 @@ def test_an_operator_in_chromium_moves_the_tool_and_saves_an_episode_with_proven
         page.wait_for("window.consoleStats.status.some(s => s.startsWith('session ended: 1 saved'))")
         latencies = page.js("window.consoleStats.latencies")
         assert latencies and all(0 < v < 30_000 for v in latencies)
+
+        # The gamepad, through the browser's Gamepad API (a pad the page reads as Chromium would report one).
+        page.js("window.fakePad = {id: 'test pad (STANDARD GAMEPAD)', axes: [0, 0, 0, 0], buttons: Array.from("
+                "{length: 17}, () => ({pressed: false, value: 0}))}; navigator.getGamepads = () => [window.fakePad];"
+                "document.getElementById('device').value = 'gamepad';"
+                "document.getElementById('device').dispatchEvent(new Event('change'))")
+        play(page)
+        hold_pad(page, 3, 1.0, 3)   # right stick pulled down: down in the image
+        views = [page.canvas()]
+        for _ in range(2):
+            hold_pad(page, 0, -1.0, 3)   # left stick left: left in the image
+            views.append(page.canvas())
+        (x0, _), (x1, _), (x2, _) = tool_centroids(views)
+        assert x0 - x1 > 0.03 * width and x1 - x2 > 0.03 * width, (x0, x1, x2)
+        page.js("window.fakePad.buttons[9] = {pressed: true, value: 1}")   # Start: save
+        page.wait_for("window.consoleStats.status.some(s => s.startsWith('saved episode 1'))", timeout=180)
+        page.js("window.fakePad.buttons[9] = {pressed: false, value: 0}")
+        page.tap("Escape")
+        page.wait_for("window.consoleStats.status.filter(s => s.startsWith('session ended: 1 saved')).length == 2")
     text = "".join(log)
     assert text.count("refused a connection") == 2, text
     table = episodes(out / "NeedleReach")
-    assert len(table) == 1
+    assert len(table) == 2
+    pad = table.iloc[1]
+    assert (pad["device"], pad["operator_id"]) == ("browser-gamepad", "resident07")
+    assert json.loads(pad["device_settings"])["devices"][0]["settings"]["controller"] == "test pad (STANDARD GAMEPAD)"
     row = table.iloc[0]
     assert (row["device"], row["operator_id"], row["skill"], row["source"]) == \
         ("browser-keyboard", "resident07", "novice", "haptic")
