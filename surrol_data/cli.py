@@ -437,6 +437,52 @@ def gui(out: Path = typer.Option(Path("gui_sessions"), help="Folder for the sess
 
 
 @app.command()
+def serve(out: Path = typer.Option(..., help="Folder for the datasets: OUT/<task>, one per task, appended to."),
+          task: Optional[list[str]] = typer.Option(None, help="A task offered (repeat for more; default: every "
+                                                   "task). The first is chosen when a page opens."),
+          host: str = typer.Option("127.0.0.1", help="Address to listen on: 127.0.0.1 (this machine only), "
+                                   "0.0.0.0 for the network (browsers still need the printed token)."),
+          port: int = typer.Option(8765, min=0, max=65535, help="Port (0: a free one)."),
+          token: Optional[str] = typer.Option(None, envvar="SURROL_DATA_WEB_TOKEN",
+                                              help="Access token browsers need (default: a new random one, printed "
+                                              "with the address); from the environment, it stays out of `ps`."),
+          view_size: str = typer.Option("640x480", help="Endoscope view WIDTHxHEIGHT streamed to each browser "
+                                        "(at most 1280x960)."),
+          renderer: str = typer.Option("auto", help="What draws the view: auto (Panda3D where it can render, "
+                                       "else TinyRenderer), panda3d or tiny.")):
+    """A web console for human demonstrations: every browser drives its own env; episodes into OUT/<task>."""
+    from surrol_data.envs import TASKS
+    from surrol_data.extras import MissingExtra, require
+
+    try:
+        for module in ("starlette", "uvicorn", "websockets"):
+            require(module)
+    except MissingExtra as e:
+        _fail(f"serve: {e}")
+    tasks = list(dict.fromkeys(task or TASKS))
+    unknown = [t for t in tasks if t not in TASKS]
+    if unknown:
+        _fail(f"unknown task {unknown[0]!r}; known tasks: {', '.join(TASKS)}")
+    try:
+        size = tuple(int(v) for v in view_size.lower().split("x"))
+    except ValueError:
+        size = ()
+    if len(size) != 2 or not (64 <= size[0] <= 1280 and 64 <= size[1] <= 960):
+        _fail(f"--view-size takes WIDTHxHEIGHT from 64x64 to 1280x960, e.g. 640x480; got {view_size!r}")
+    if renderer not in ("auto", "panda3d", "tiny"):
+        _fail(f"--renderer must be auto, panda3d or tiny, got {renderer!r}")
+    if token is not None and len(token) < 8:
+        _fail("--token must be at least 8 characters")
+    from surrol_data.web import serve as serve_console
+
+    try:
+        serve_console(out, tasks, host=host, port=port, token=token, size=size, renderer=renderer,
+                      announce=lambda line: print(line, flush=True))
+    except OSError as e:
+        _fail(f"cannot listen on {host}:{port}: {e.strerror or e} (another server there? try --port 0)")
+
+
+@app.command()
 def info(dataset: Path = typer.Argument(..., help="Dataset folder.")):
     """Summarise a dataset: counts, features and a provenance breakdown."""
     from surrol_data.datasets.info import render_info

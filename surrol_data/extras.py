@@ -21,6 +21,9 @@ OPTIONAL = {
     "tensorboard": ("tensorboard", "tensorboard"),
     "hydra_plugins.hydra_submitit_launcher": ("cluster", "hydra-submitit-launcher"),
     "submitit": ("cluster", "submitit"),
+    "starlette": ("web", "starlette"),
+    "uvicorn": ("web", "uvicorn"),
+    "websockets": ("web", "websockets"),
 }
 
 

@@ -12,7 +12,7 @@ layer  packages and modules of ``surrol_data``
 2      ``render``, ``datasets`` (neither imports the other)
 3      ``collect``, ``viz`` (viz does not import collect)
 4      ``evaluation``, ``algos`` (evaluation does not import algos)
-5      the apps: ``cli``, ``demo``, ``gui``, ``study``, ``train_app``
+5      the apps: ``cli``, ``demo``, ``gui``, ``study``, ``train_app``, ``web``
 ====== ==========================================================
 
 A module may import from its own layer and the ones below, never from a higher one; the pairs named above are
@@ -36,7 +36,7 @@ LAYERS = {
     "render": 2, "datasets": 2,
     "collect": 3, "viz": 3,
     "evaluation": 4, "algos": 4,
-    "cli": 5, "demo": 5, "gui": 5, "study": 5, "train_app": 5,
+    "cli": 5, "demo": 5, "gui": 5, "study": 5, "train_app": 5, "web": 5,
 }
 # (importer, imported): refused although the layers alone would allow it (or named for a clearer message).
 FORBIDDEN = {

@@ -31,6 +31,8 @@ finalize the dataset with every finished episode.
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import json
 import os
 import sys
@@ -103,7 +105,7 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
                    realtime: bool | None = None, key_tracker=None, on_step=None,
                    env_kwargs: dict | None = None, profile: str | None = None,
                    policy: Policy | str | None = None, policy_info: dict | None = None,
-                   timeout_needs_save: bool = False) -> HapticResult:
+                   timeout_needs_save: bool = False, episode_sink=None) -> HapticResult:
     """Record ``episodes`` kept teleoperated episodes of ``task`` into the dataset at ``out``.
 
     ``device``: a name of :data:`surrol_data.collect.devices.DEVICE_NAMES` (one device per arm is built with
@@ -123,6 +125,9 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
     ``policy_info`` is what the provenance records of it (spec, content hash, algorithm, training data).
     ``timeout_needs_save``: an attempt that runs out of time without success waits for a session key: the save key
     keeps it, redo / discard / end drop it (the training GUI; without a key source it changes nothing).
+    ``episode_sink(traj, provenance, frames, meta) -> index``: records each kept episode instead of a recorder the
+    session opens on ``out`` (the web console's sessions hand their episodes to its one writer; the default is
+    :func:`record_episode`).
     """
     if episodes <= 0:
         raise ValueError(f"the number of episodes must be positive, got {episodes}")
@@ -160,7 +165,7 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
         return _Session(env, eid, episodes, out, device, names, operator_id, skill, sides, mapping, trace, seed,
                         horizon, keep_failures, append, gui, rerun_live, max_attempts or 3 * episodes, progress,
                         command, library, realtime, key_tracker, on_step, profile, policy, policy_info,
-                        timeout_needs_save, renderer_of(env_kwargs)).run()
+                        timeout_needs_save, renderer_of(env_kwargs), episode_sink).run()
     finally:
         env.close()
 
@@ -248,7 +253,7 @@ class _Session:
     def __init__(self, env, eid, episodes, out, device, names, operator_id, skill, sides, mapping, trace, seed,
                  horizon, keep_failures, append, gui, rerun_live, max_attempts, progress, command, library,
                  realtime, key_tracker=None, on_step=None, profile=None, policy=None, policy_info=None,
-                 timeout_needs_save=False, camera_renderer=DEFAULT_CAMERA_RENDERER):
+                 timeout_needs_save=False, camera_renderer=DEFAULT_CAMERA_RENDERER, episode_sink=None):
         self.timeout_needs_save = timeout_needs_save
         self.env, self.eid, self.episodes, self.out = env, eid, episodes, Path(out)
         self.task = eid.split("/")[1].rsplit("-v", 1)[0]
@@ -314,11 +319,16 @@ class _Session:
         if self.policy is not None:
             names = dimension_names(env)
             features.update(intervention_features(names.n_arms, names.action))
-        self.recorder = DatasetRecorder(self.out, task=self.task, env_id=eid, task_description=env.unwrapped.TASK,
-                                        features=features, append=append, command=command,
-                                        checkpoint_every=1, robot_type=dimension_names(env).robot_type,
-                                        camera_renderer=camera_renderer,
-                                        lazy=False)   # lerobot's import before the operator starts, not after
+        if episode_sink is not None:   # another process writes the dataset (the web console's one writer)
+            self.recorder, self.episode_sink = contextlib.nullcontext(), episode_sink
+        else:
+            self.recorder = DatasetRecorder(self.out, task=self.task, env_id=eid,
+                                            task_description=env.unwrapped.TASK, features=features, append=append,
+                                            command=command, checkpoint_every=1,
+                                            robot_type=dimension_names(env).robot_type,
+                                            camera_renderer=camera_renderer,
+                                            lazy=False)   # lerobot's import before the operator starts, not after
+            self.episode_sink = functools.partial(record_episode, self.recorder, self.out)
         self.result = HapticResult(root=self.out)
 
     def _key_tracker(self, names):
@@ -568,27 +578,36 @@ class _Session:
                       **operator,
                       "device_settings": json.dumps(device_settings, sort_keys=True, default=str),
                       "seed": attempt_seed, "duration_s": self._duration}
-        # The trace goes to disk before the episode (a kill in between leaves a trace of no episode, which
-        # repair moves aside, never an episode without its trace); signals wait until both are written.
-        with self.recorder.hold_signals():
-            index = self.recorder.num_episodes
-            meta = {"task": self.task, "env_id": self.eid, "seed": attempt_seed, "horizon": self.horizon,
-                    "episode_index": index, "dataset": str(self.out.resolve()), "success": traj.is_success,
-                    "devices": [d.name for d in self.devices], "sides": [s or "" for s in self.sides],
-                    "mapping": [m.as_dict() for m in mappings], **operator}
-            path = write_trace(trace_path(self.out, index), frames, traj.action, meta)
-            try:
-                recorded = self.recorder.record(traj, provenance)
-            except BaseException:
-                path.unlink(missing_ok=True)
-                raise
-            assert recorded == index, (recorded, index)
+        meta = {"task": self.task, "env_id": self.eid, "seed": attempt_seed, "horizon": self.horizon,
+                "success": traj.is_success, "devices": [d.name for d in self.devices],
+                "sides": [s or "" for s in self.sides], "mapping": [m.as_dict() for m in mappings], **operator}
+        index = self.episode_sink(traj, provenance, frames, meta)
         self.result.kept += 1
         self.result.episode_indices.append(index)
         self.result.frames += len(traj)
         if self.policy is not None:
             self.result.takeovers += counts.takeovers
             self.result.intervention_frames += counts.intervention_frames
+
+
+def record_episode(recorder: DatasetRecorder, out: str | Path, traj, provenance: dict, frames, meta: dict) -> int:
+    """Record one haptic episode and its device trace into the dataset at ``out`` that ``recorder`` writes; the
+    episode's index. ``meta`` (the trace's) gets the episode's index and the dataset's path.
+
+    The trace goes to disk before the episode (a kill in between leaves a trace of no episode, which repair moves
+    aside, never an episode without its trace); signals wait until both are written."""
+    out = Path(out)
+    with recorder.hold_signals():
+        index = recorder.num_episodes
+        meta = {**meta, "episode_index": index, "dataset": str(out.resolve())}
+        path = write_trace(trace_path(out, index), frames, traj.action, meta)
+        try:
+            recorded = recorder.record(traj, provenance)
+        except BaseException:
+            path.unlink(missing_ok=True)
+            raise
+        assert recorded == index, (recorded, index)
+    return index
 
 
 class _LiveStream:

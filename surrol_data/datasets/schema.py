@@ -82,6 +82,7 @@ PENDING_DATASET = "pending_dataset"
 PROVENANCE_COLUMNS: dict[str, type] = {
     "source": str,              # script | haptic | policy | intervention
     "device": str,              # touch | keyboard | gamepad | spacemouse | replay | simulated-operator | none
+                                # | browser-keyboard | browser-gamepad (the web console)
     "operator_id": str,
     "skill": str,               # expert | novice | scripted | unknown
     "operator_simulated": bool,
@@ -106,7 +107,8 @@ PROVENANCE_COLUMNS: dict[str, type] = {
 
 PROVENANCE_CHOICES: dict[str, tuple[str, ...]] = {
     "source": ("script", "haptic", "policy", "intervention"),
-    "device": ("touch", "keyboard", "gamepad", "spacemouse", "replay", "simulated-operator", "none"),
+    "device": ("touch", "keyboard", "gamepad", "spacemouse", "replay", "simulated-operator", "browser-keyboard",
+               "browser-gamepad", "none"),
     "skill": ("expert", "novice", "scripted", "unknown"),
 }
 

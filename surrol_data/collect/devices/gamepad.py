@@ -85,6 +85,10 @@ class GamepadDevice(Device):
             if event.type == pg.JOYDEVICEREMOVED and self._removed(event):
                 raise DeviceError(f"gamepad {self._joystick.get_name()!r} was unplugged")
         pg.event.pump()
+        return self._frame()
+
+    def _frame(self) -> DeviceFrame:
+        """The stylus after one step of the pad as it reads now (sticks, shoulders, A, B, the trigger)."""
         js, lay = self._joystick, self.layout
         velocity = np.array([sign * self._deadzoned(js.get_axis(axis)) for axis, sign in lay.axes])
         turn = float(js.get_button(lay.turn_left)) - float(js.get_button(lay.turn_right))

@@ -1,0 +1,332 @@
+"""The web console (``surrol-data serve``): the page's messages are checked, the page's devices map as the keyboard and
+gamepad do, and in a real headless Chromium: an operator's keys move the tool the right way in the streamed view, the
+episode saved is in the dataset with its provenance, two browsers record into one dataset at once, a tab closed
+mid-episode and a server killed lose nothing saved, and a connection without the token is refused."""
+
+from __future__ import annotations
+
+import json
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from headless_chromium import PACKAGE, Chromium, chromium
+
+VIEW = "320x240"   # the tests' view: a quarter of the default's pixels to draw on a loaded CPU
+
+
+# ---------------------------------------------------------------------- without a browser
+def test_page_messages_are_checked_before_they_reach_a_session():
+    from surrol_data.web.server import Refused, _checked, _hello, _parse
+
+    tasks = ["NeedlePick"]
+    assert _hello({"type": "hello", "operator": "res.07", "skill": "novice", "task": "NeedlePick"}, tasks) == \
+        ("res.07", "novice", "NeedlePick")
+    assert _checked({"type": "input", "seq": 3, "keys": ["d"]}, tasks) == [("input", {"seq": 3, "keys": ["d"]})]
+    assert _checked({"type": "command", "name": "save"}, tasks) == [("press", "enter")]
+    assert _checked({"type": "command", "name": "play", "device": "gamepad"}, tasks) == [("play", "gamepad")]
+    refused = [
+        ("hello", {"type": "hello", "operator": "../../etc", "skill": "novice", "task": "NeedlePick"}),
+        ("hello", {"type": "hello", "operator": "a", "skill": "god", "task": "NeedlePick"}),
+        ("hello", {"type": "hello", "operator": "a", "skill": "novice", "task": "../NeedlePick"}),
+        ("check", {"type": "task", "name": "/etc/passwd"}),
+        ("check", {"type": "command", "name": "rm -rf"}),
+        ("check", {"type": "command", "name": "play", "device": "touch"}),
+        ("check", {"type": "input", "seq": -1, "keys": []}),
+        ("check", {"type": "input", "seq": 1, "keys": ["a"] * 17}),
+        ("check", {"type": "input", "seq": 1, "axes": [float("nan")]}),
+        ("check", {"type": "input", "seq": 1, "buttons": [0.0] * 33}),
+        ("check", {"type": "latency", "ms": "fast"}),
+        ("check", {"type": "eval", "code": "1"}),
+    ]
+    for kind, message in refused:
+        with pytest.raises(Refused):
+            _hello(message, tasks) if kind == "hello" else _checked(message, tasks)
+    for text in ("not json", "[1, 2]", '{"no": "type"}'):
+        with pytest.raises(Refused):
+            _parse(text)
+
+
+def test_page_keys_and_gamepad_go_through_the_keyboard_and_gamepad_devices():
+    from surrol_data.collect.devices.browser import (BrowserGamepadDevice, BrowserInput, BrowserKeyboardDevice,
+                                                     BrowserKeys)
+    from surrol_data.collect.devices.keyboard import KeyTracker
+
+    page = BrowserInput()
+    tracker = KeyTracker(BrowserKeys(page))
+    keyboard = BrowserKeyboardDevice(page, tracker, "left")
+    keyboard.connect()
+    start = keyboard.read().position_mm
+    page.apply({"seq": 1, "keys": ["d", "w", "rm"]})   # right and up (device x, y); an unknown name is dropped
+    moved = keyboard.read().position_mm - start
+    assert moved[0] > 0 and moved[1] > 0 and moved[2] == 0
+    page.apply({"seq": 2, "keys": []})
+    held = keyboard.read().position_mm
+    assert np.array_equal(keyboard.read().position_mm, held)   # released: the stylus stays
+    page.press("r")
+    page.press("rm -rf")   # not a session key: dropped
+    tracker.update()
+    pressed = tracker.pop_pressed()
+    assert pressed[-1] == "r" and "rm -rf" not in pressed
+    page.add_latency([120.0, 80.0, -5.0, 1e9])   # impossible values are not kept
+    stats = keyboard.settings()
+    assert keyboard.name == "browser-keyboard" and stats["latency_ms"]["samples"] == 2
+    assert stats["latency_ms"]["median"] == 100.0 and stats["input_messages"] == 2 and stats["layout"] == "left"
+
+    pad = BrowserGamepadDevice(page)
+    pad.connect()
+    start = pad.read().position_mm
+    # The Gamepad API's standard mapping: left stick right (axis 0), right stick up (axis 3 < 0), A held (jaw).
+    page.apply({"seq": 3, "axes": [1.0, 0.0, 0.0, -1.0, 7.0], "buttons": [1.0]})
+    frame = pad.read()
+    assert frame.position_mm[0] > start[0] and frame.position_mm[1] > start[1] and frame.buttons & 1
+    assert pad.name == "browser-gamepad" and pad.settings()["input_messages"] == 3
+
+
+def test_serve_refuses_bad_arguments_in_one_line():
+    from surrol_data.cli import app
+
+    runner = CliRunner()
+    for args, words in ((["--task", "NoSuchTask"], "unknown task"), (["--view-size", "5000x10"], "--view-size"),
+                        (["--renderer", "vulkan"], "--renderer"), (["--token", "short"], "--token")):
+        result = runner.invoke(app, ["serve", "--out", "unused", *args])
+        assert result.exit_code != 0 and words in result.output and "Traceback" not in result.output, result.output
+
+
+# ---------------------------------------------------------------------- in Chromium
+needs_chromium = pytest.mark.skipif(chromium() is None, reason=f"needs headless Chromium: apt-get install {PACKAGE}")
+
+
+@contextmanager
+def console_server(out: Path, *tasks: str):
+    """``surrol-data serve`` on a free port; yields (address with the token, the log lines so far)."""
+    command = [str(Path(sys.executable).parent / "surrol-data"), "serve", "--out", str(out), "--port", "0",
+               "--view-size", VIEW, *[a for t in tasks for a in ("--task", t)]]
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines: list[str] = []
+    url = None
+    for line in proc.stdout:
+        lines.append(line)
+        found = re.search(r"open (http://\S+)", line)
+        if found:
+            url = found.group(1)
+            break
+    threading.Thread(target=lambda: lines.extend(proc.stdout), daemon=True).start()
+    assert url, "".join(lines)
+    try:
+        yield url, lines, proc
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)   # a graceful stop: the writer finalizes the datasets
+            try:
+                proc.wait(120)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
+def enter_operator(page, url: str, operator: str, skill: str) -> None:
+    page.goto(url)
+    page.wait_for("document.getElementById('who').open")
+    page.js("document.getElementById('who-id').focus()")
+    page.type_text(operator)
+    page.js(f"document.getElementById('who-skill-select').value = '{skill}'")
+    page.tap("Enter")
+    page.wait_for("window.consoleStats.frames > 0 && !document.getElementById('play').disabled")
+
+
+def hold(page, key: str, steps: int) -> None:
+    """Hold ``key`` until the session has stepped ``steps`` times with it (the HUD's step count says so)."""
+    page.key(key, True)
+    pressed = page.js("window.consoleStats.sent")
+    page.wait_for(f"window.consoleStats.lastAck >= {pressed}")   # a frame stepped with the key held
+    first = page.js("window.consoleStats.hud.step")
+    page.wait_for(f"window.consoleStats.hud.step >= {first + steps - 1}")
+    page.key(key, False)
+    released = page.js("window.consoleStats.sent")
+    page.wait_for(f"window.consoleStats.lastAck >= {released}")   # the view after the release
+
+
+def hold_pad(page, axis: int, value: float, steps: int) -> None:
+    """Hold the page's gamepad stick ``axis`` at ``value`` for ``steps`` session steps (as :func:`hold`)."""
+    for held in (True, False):
+        before = page.js("window.consoleStats.sent")
+        page.js(f"window.fakePad.axes[{axis}] = {value if held else 0}")   # the page polls it every frame
+        page.wait_for(f"window.consoleStats.sent > {before} && window.consoleStats.lastAck >= window.consoleStats.sent")
+        if held:
+            first = page.js("window.consoleStats.hud.step")
+            page.wait_for(f"window.consoleStats.hud.step >= {first + steps - 1}")
+
+
+def play(page) -> None:
+    page.js("document.getElementById('play').click()")
+    page.wait_for("window.consoleStats.hud && window.consoleStats.hud.playing && window.consoleStats.hud.step > 0")
+
+
+def save(page, episode_text: str = "saved episode") -> None:
+    page.tap("Enter")
+    page.wait_for(f"window.consoleStats.status.some(s => s.startsWith('{episode_text}'))", timeout=180)
+
+
+def tool_centroids(frames: list[np.ndarray]) -> list[np.ndarray]:
+    """Where the tool is in each view: the pixels that differ from the views' per-pixel median (the scene without
+    the tool, where it moved far enough between views), their centroid (x, y)."""
+    stack = np.stack([f.astype(np.int16) for f in frames])
+    background = np.median(stack, axis=0)
+    centroids = []
+    for f in stack:
+        mask = np.abs(f - background).sum(axis=2) > 60
+        ys, xs = np.nonzero(mask)
+        assert xs.size > 20, "no tool in the view"
+        centroids.append(np.array([xs.mean(), ys.mean()]))
+    return centroids
+
+
+def episodes(root: Path):
+    from surrol_data.datasets.reader import DatasetReader
+
+    return DatasetReader(root).episodes
+
+
+def refused_without_the_token(page, url: str) -> None:
+    """No token, no session: the page's own WebSocket without it (or with a wrong one) never opens, the task list
+    is refused."""
+    page.goto(url.split("?")[0])
+    assert page.js("fetch('/api/tasks').then(r => r.status)") == 403
+    for query in ("", "?token=wrong"):
+        assert page.js(f"new Promise(done => {{ const ws = new WebSocket(`ws://${{location.host}}/ws{query}`);"
+                       "ws.onopen = () => done('opened'); ws.onclose = () => done('refused'); })") == "refused"
+
+
+@pytest.mark.browser
+@needs_chromium
+def test_in_chromium_a_page_without_the_token_gets_nothing_and_the_operator_is_asked_once(tmp_path):
+    with console_server(tmp_path / "class", "NeedleReach", "NeedlePick") as (url, log, _), Chromium() as browser:
+        page = browser.new_page()
+        refused_without_the_token(page, url)
+        page.goto(url)
+        page.wait_for("document.getElementById('who').open")
+        assert page.js("document.querySelectorAll('#tasks li').length") == 2
+        assert page.js("fetch(`/api/tasks/NeedlePick.png`).then(r => r.headers.get('content-type'))") == "image/png"
+        assert page.js("fetch(`/api/tasks/..%2F..%2Fpyproject.toml.png`).then(r => r.status)") == 404
+        page.js("document.getElementById('who-id').value = 'not a valid id!'")
+        page.tap("Enter")   # refused by the form: still asking
+        assert page.js("document.getElementById('who').open and localStorage.getItem('surrol.operator') === null"
+                       .replace(" and ", " && "))
+        page.js("document.getElementById('who-id').value = 'resident07'")
+        page.js("document.getElementById('who-form').requestSubmit()")
+        page.wait_for("localStorage.getItem('surrol.operator') === 'resident07'")
+        page.goto(url)   # the same browser again: not asked again
+        assert page.js("document.getElementById('who').open") is False
+        assert page.js("document.getElementById('who-name').textContent") == "resident07"
+    assert "".join(log).count("refused a connection") == 2
+
+
+@pytest.mark.browser
+@pytest.mark.slow
+@needs_chromium
+def test_an_operator_in_chromium_moves_the_tool_and_saves_an_episode_with_provenance(tmp_path):
+    out = tmp_path / "class"
+    with console_server(out, "NeedleReach", "NeedlePick") as (url, log, _), Chromium() as browser:
+        page = browser.new_page()
+        refused_without_the_token(page, url)
+        enter_operator(page, url, "resident07", "novice")
+        assert page.js("document.querySelectorAll('#tasks li').length") == 2
+        assert page.js("localStorage.getItem('surrol.operator')") == "resident07"
+        play(page)
+        hold(page, "s", 3)   # down in the image: the tool comes down into the view
+        views = [page.canvas()]
+        for _ in range(2):   # left in the image, twice
+            hold(page, "a", 3)
+            views.append(page.canvas())
+        (x0, y0), (x1, _), (x2, _) = tool_centroids(views)
+        width = views[0].shape[1]
+        assert x0 - x1 > 0.03 * width and x1 - x2 > 0.03 * width, (x0, x1, x2)
+        save(page)
+        page.tap("Escape")
+        page.wait_for("window.consoleStats.status.some(s => s.startsWith('session ended: 1 saved'))")
+        latencies = page.js("window.consoleStats.latencies")
+        assert latencies and all(0 < v < 30_000 for v in latencies)
+
+        # The gamepad, through the browser's Gamepad API (a pad the page reads as Chromium would report one).
+        page.js("window.fakePad = {id: 'test pad (STANDARD GAMEPAD)', axes: [0, 0, 0, 0], buttons: Array.from("
+                "{length: 17}, () => ({pressed: false, value: 0}))}; navigator.getGamepads = () => [window.fakePad];"
+                "document.getElementById('device').value = 'gamepad';"
+                "document.getElementById('device').dispatchEvent(new Event('change'))")
+        play(page)
+        hold_pad(page, 3, 1.0, 3)   # right stick pulled down: down in the image
+        views = [page.canvas()]
+        for _ in range(2):
+            hold_pad(page, 0, -1.0, 3)   # left stick left: left in the image
+            views.append(page.canvas())
+        (x0, _), (x1, _), (x2, _) = tool_centroids(views)
+        assert x0 - x1 > 0.03 * width and x1 - x2 > 0.03 * width, (x0, x1, x2)
+        page.js("window.fakePad.buttons[9] = {pressed: true, value: 1}")   # Start: save
+        page.wait_for("window.consoleStats.status.some(s => s.startsWith('saved episode 1'))", timeout=180)
+        page.js("window.fakePad.buttons[9] = {pressed: false, value: 0}")
+        page.tap("Escape")
+        page.wait_for("window.consoleStats.status.filter(s => s.startsWith('session ended: 1 saved')).length == 2")
+    text = "".join(log)
+    assert text.count("refused a connection") == 2, text
+    table = episodes(out / "NeedleReach")
+    assert len(table) == 2
+    pad = table.iloc[1]
+    assert (pad["device"], pad["operator_id"]) == ("browser-gamepad", "resident07")
+    assert json.loads(pad["device_settings"])["devices"][0]["settings"]["controller"] == "test pad (STANDARD GAMEPAD)"
+    row = table.iloc[0]
+    assert (row["device"], row["operator_id"], row["skill"], row["source"]) == \
+        ("browser-keyboard", "resident07", "novice", "haptic")
+    settings = json.loads(row["device_settings"])["devices"][0]["settings"]
+    assert settings["input_rate_hz"] > 0 and settings["input_messages"] >= 6
+    assert settings["latency_ms"]["samples"] >= 1 and settings["latency_ms"]["median"] > 0
+    assert (out / "NeedleReach" / "meta" / "device_traces").is_dir()
+    assert not (out / "NeedlePick").exists()   # nothing recorded, no dataset
+
+
+@pytest.mark.browser
+@pytest.mark.slow
+@needs_chromium
+def test_two_browsers_record_into_one_dataset_and_a_closed_tab_or_a_killed_server_loses_nothing_saved(tmp_path):
+    from surrol_data.datasets.guard import ensure_finished
+    from surrol_data.datasets.validate import validate_dataset
+
+    out = tmp_path / "class"
+    with console_server(out, "NeedleReach") as (url, log, server), Chromium() as browser:
+        pages = [browser.new_page() for _ in range(3)]
+        for i, page in enumerate(pages):
+            enter_operator(page, url, f"student{i}", "novice")
+        for page in pages:
+            play(page)
+        # Both at once: each holds a key for a few steps, then saves.
+        done = []
+        workers = [threading.Thread(target=lambda p=p, k=k: (hold(p, k, 3), save(p), done.append(p)))
+                   for p, k in ((pages[0], "s"), (pages[1], "a"))]
+        for w in workers:
+            w.start()
+        hold(pages[2], "w", 2)
+        browser.close_page(pages[2])   # mid-episode: its attempt is dropped, nothing else
+        for w in workers:
+            w.join(300)
+        assert len(done) == 2
+        deadline = time.monotonic() + 60   # the closed tab's process ends its attempt, then is gone
+        while "operator student2) ended" not in "".join(log):
+            assert time.monotonic() < deadline, "".join(log)
+            time.sleep(0.5)
+        # Killed outright (no shutdown): every episode answered "saved" survives.
+        server.send_signal(signal.SIGKILL)
+        server.wait(30)
+    ensure_finished(out / "NeedleReach")   # what every command does first with a dataset a kill left
+    problems = validate_dataset(out / "NeedleReach", check_reward=False)
+    assert problems == [], problems
+    table = episodes(out / "NeedleReach")
+    assert sorted(table["operator_id"]) == ["student0", "student1"]
+    assert set(table["device"]) == {"browser-keyboard"} and len(set(table["seed"])) == 2
