@@ -78,6 +78,8 @@ from surrol_data.envs.units import SCALING
 _TOUCH = physics.GRASP_CONTACT_DISTANCE_M * SCALING
 _BLADE_LENGTH = physics.BLADE_LENGTH_M * SCALING
 _ACROSS = np.cos(np.deg2rad(45.0))   # contact normal within 45° of the inner-face normal
+_OPPOSED = np.cos(np.deg2rad(45.0))  # the two blades' contact normals within 45° of opposite
+_MAX_DEPTH = physics.GRASP_MAX_BLADE_DEPTH_M * SCALING
 _ORIGIN, _NO_TURN = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)
 _WORLD_FRAME = pb.WORLD_FRAME
 # Direction from each blade towards the other, in the blade's link frame (blade 6 lies on +x, blade 7 on −x).
@@ -118,27 +120,39 @@ class Grasp:
         return self.constraint is not None and self.object_id == object_id and self.object_link == object_link
 
     def between_blades(self) -> bool:
-        """Both blades touch the object on their inner faces, within the blade length, and the jaw is open
+        """Both blades touch the object on their inner faces, within the blade length, from outside it, with contact
+        normals opposed (the object lies across the gap between the faces), and the jaw is open
         (``physics.GRASP_MIN_OPENING_RAD``)."""
         if self.object_id < 0 or self.psm.jaw_angle() < physics.GRASP_MIN_OPENING_RAD:
             return False
-        return all(self._inner_face_touch(j, towards) for j, towards in zip(JAW_JOINTS, _TOWARDS_OTHER))
+        first = self._inner_face_normals(JAW_JOINTS[0], _TOWARDS_OTHER[0])
+        if not first:
+            return False
+        second = self._inner_face_normals(JAW_JOINTS[1], _TOWARDS_OTHER[1])
+        # A tip-pinch (the blade ends on two faces of a jack's arm ~90° apart) touches both inner faces within their
+        # 45° cones but squeezes nothing between them: it lifted PickAndPlace's jacks by the weld (tests/
+        # test_held_objects.py). The faces of a held object push the blades apart along one line.
+        return any(a[0] * b[0] + a[1] * b[1] + a[2] * b[2] < -_OPPOSED for a in first for b in second)
 
-    def _inner_face_touch(self, link: int, towards_other: float) -> bool:
+    def _inner_face_normals(self, link: int, towards_other: float) -> list:
+        """The contact normals (world, object → blade) of the blade's inner-face touches of the object; none if the
+        blade lies inside the object deeper than ``physics.GRASP_MAX_BLADE_DEPTH_M`` (a blade that closed through it,
+        or one left in it by a drop, does not touch it from outside)."""
         # (Run after every physics step while a jaw closes: PyBullet called positionally where it can.)
         cid = self.client._client
         points = pb.getClosestPoints(self.psm.body, self.object_id, _TOUCH, link, physicsClientId=cid)
-        if not points:
-            return False
+        if not points or min(p[8] for p in points) < -_MAX_DEPTH:
+            return []
         state = pb.getLinkState(self.psm.body, link, 0, 1, cid)
         inv_pos, inv_quat = pb.invertTransform(state[4], state[5])
+        normals = []
         for p in points:
             along = pb.multiplyTransforms(inv_pos, inv_quat, p[6], _NO_TURN)[0][1]
             normal_x = pb.multiplyTransforms(_ORIGIN, inv_quat, p[7], _NO_TURN)[0][0]
             # p[7] points from the object to the blade: for an inner-face touch, away from the other blade.
             if -towards_other * normal_x > _ACROSS and -_TOUCH <= along <= _BLADE_LENGTH:
-                return True
-        return False
+                normals.append(p[7])
+        return normals
 
     def held_offset_m(self) -> float:
         """How far (real metres) the held object's frame sits from the wrist's origin, at most: where it was
@@ -164,6 +178,17 @@ class Grasp:
         if not self.attached and self.between_blades():
             self._grip()
         return self.attached
+
+    def slipped(self) -> bool:
+        """Called after every physics step while holding (not while carried: nothing makes a carried object slip):
+        an object that has slipped past ``max_slip_m`` in the hand is dropped there and then, and the drop counted.
+        Checked once per control step, a block slipped 5.15 mm in the middle of a step and was back within 0.26 mm
+        at its end, never counted (BiPegTransfer, bang-bang). Returns whether it was dropped."""
+        if self.carried or self.slip_m() <= self.max_slip_m:
+            return False
+        self.drops += 1
+        self.release()
+        return True
 
     def update(self, closing: bool) -> None:
         if not closing:

@@ -290,6 +290,8 @@ class PsmEnv(gym.Env):
         arms = [grasp.psm for grasp in planner.grasps]
         planner.plan_tools(physics.TIME_STEP, watched)
         carried = planner.carried
+        # Held objects' slip, watched after every physics step (Grasp.slipped; a carried object cannot slip).
+        holding = [g for g in planner.grasps if g.attached and not g.carried]
         for psm in arms:
             psm.plan_gravity_compensation()
         if planner.free_arm is not None and self._move_free(planner.free_arm, steps, hook):
@@ -313,8 +315,13 @@ class PsmEnv(gym.Env):
                 if carried and hook is not None:
                     for grasp in carried:   # (a probe sees the carried object where it is at every step)
                         grasp.follow()
+                if holding:
+                    holding = [g for g in holding if g.attached and not g.slipped()]
                 if watched:
-                    watched = [g for g in watched if not g.grip_if_between()]
+                    gripped = [g for g in watched if g.grip_if_between()]
+                    if gripped:
+                        watched = [g for g in watched if g not in gripped]
+                        holding += gripped
                 if hook is not None:
                     hook(self)
         for grasp in carried:
