@@ -38,7 +38,7 @@
    period it may be carried kinematically instead (``carry``, chosen by adaptive_steps.SubstepPlanner where the
    env asks for it): the constraint is taken out of the solver, the object out of the dynamics (massless, still,
    not colliding with the hand) and put at its pose in the hand after the period's physics steps (after each of
-   them while a probe looks: PsmEnv.substep_hook), and the wrist link carries the object's mass, inertia and weight
+   them while a probe looks: PsmEnv.substep_hook, without a forward-kinematics pass, see ``follow_seen``), and the wrist link carries the object's mass, inertia and weight
    instead, so the arm is loaded as before. The constraint comes back (``restore``) with the frame it was made with
    before any period in which something could come near the object, and before the grasp lets go; the object then
    rejoins the dynamics where the hand has it, moving with the wrist.
@@ -256,22 +256,36 @@ class Grasp:
         pb.applyExternalTorque(self.psm.body, EEF_LINK, self._torque, _WORLD_FRAME, self.client._client)
 
     def follow(self, velocity: bool = False) -> None:
-        """While carried: the object at its pose in the hand (after a control period's physics steps, or after each
-        of them for a probe that looks); ``velocity``: moving with the wrist as well (when it rejoins the dynamics)."""
+        """While carried: the object at its pose in the hand (after a control period's physics steps); ``velocity``:
+        moving with the wrist as well (when it rejoins the dynamics)."""
         # (computeForwardKinematics=1: PyBullet's stored frame of a link without a collision shape is what the last
-        # forward-kinematics pass left, not what the last physics step did. Such a pass between two physics steps
-        # moves the solver's next result by ~1e-7 rad, so a probe that follows at every step changes the episode by
-        # that much, as the realism probe's own getLinkState calls do.)
+        # forward-kinematics pass left, not what the last physics step did.)
         cid = self.client._client
         eef = pb.getLinkState(self.psm.body, EEF_LINK, int(velocity), 1, cid)
         self._eef = (eef[4], eef[5])
-        pos, quat = pb.multiplyTransforms(eef[4], eef[5], *self._carry_at)
-        pb.resetBasePositionAndOrientation(self.object_id, pos, quat, cid)
+        pos = self._put(eef[4], eef[5])
         if velocity:
             v, w = eef[6], eef[7]
             rx, ry, rz = pos[0] - eef[4][0], pos[1] - eef[4][1], pos[2] - eef[4][2]
             pb.resetBaseVelocity(self.object_id, (v[0] + w[1] * rz - w[2] * ry, v[1] + w[2] * rx - w[0] * rz,
                                                   v[2] + w[0] * ry - w[1] * rx), w, cid)
+
+    def follow_seen(self) -> None:
+        """While carried, after each physics step for a probe that looks: the object where the hand has it, the wrist's
+        frame read from a blade's (a link with a collision shape, whose stored frame the physics step left) turned
+        back by the blade's joint. A forward-kinematics pass between two physics steps moves the solver's next
+        result by ~1e-7 rad, growing to millimetres: a probe must leave the episode as it is without it."""
+        cid = self.client._client
+        blade = pb.getLinkState(self.psm.body, JAW_JOINTS[0], 0, 0, cid)
+        angle = pb.getJointState(self.psm.body, JAW_JOINTS[0], cid)[0]
+        half = 0.5 * angle
+        origin, turn = pb.multiplyTransforms(blade[4], blade[5], _ORIGIN, (0.0, 0.0, -np.sin(half), np.cos(half)))
+        self._put(origin, turn)
+
+    def _put(self, origin, turn) -> None:
+        pos, quat = pb.multiplyTransforms(origin, turn, *self._carry_at)
+        pb.resetBasePositionAndOrientation(self.object_id, pos, quat, self.client._client)
+        return pos
 
     def _end_carry(self) -> None:
         """The object back in the dynamics, where the hand has it and moving with it; the wrist link as built."""

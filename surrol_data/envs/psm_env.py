@@ -314,7 +314,7 @@ class PsmEnv(gym.Env):
                 step_simulation(cid)
                 if carried and hook is not None:
                     for grasp in carried:   # (a probe sees the carried object where it is at every step)
-                        grasp.follow()
+                        grasp.follow_seen()
                 if holding:
                     holding = [g for g in holding if g.attached and not g.slipped()]
                 if watched:
