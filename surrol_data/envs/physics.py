@@ -190,6 +190,10 @@ GRASP_MIN_OPENING_RAD = float(np.deg2rad(3.0))
 # closed through the object or was left in it by a drop (then the jaw, still commanded closed, re-gripped a MatchBoard
 # block with a blade 1.95 mm inside it).
 GRASP_MAX_BLADE_DEPTH_M = 0.0005
+# A held object pressed into a static body deeper than this slips out of the hand (Grasp.gives): the weld would push it
+# on through (a block 1.32 mm into MatchBoard's board). Contacts are those of the physics step's collision pass,
+# which the step's own motion may deepen by a few tenths of a millimetre: hence 0.6, not the 1 mm limit.
+GRASP_MAX_PRESS_M = 0.0006
 GRASP_MAX_SLIP_M = 0.002            # a held object this far from where it was gripped is dropped (the 2 mm)
 
 

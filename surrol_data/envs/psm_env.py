@@ -290,8 +290,10 @@ class PsmEnv(gym.Env):
         arms = [grasp.psm for grasp in planner.grasps]
         planner.plan_tools(physics.TIME_STEP, watched)
         carried = planner.carried
-        # Held objects' slip, watched after every physics step (Grasp.slipped; a carried object cannot slip).
+        # Held objects' slip and press-in, watched after every physics step (Grasp.gives; a carried object has
+        # neither).
         holding = [g for g in planner.grasps if g.attached and not g.carried]
+        movable = set(self.dynamic_bodies()).union(arm.body for arm in arms) if watched or holding else ()
         for psm in arms:
             psm.plan_gravity_compensation()
         if planner.free_arm is not None and self._move_free(planner.free_arm, steps, hook):
@@ -316,7 +318,7 @@ class PsmEnv(gym.Env):
                     for grasp in carried:   # (a probe sees the carried object where it is at every step)
                         grasp.follow_seen()
                 if holding:
-                    holding = [g for g in holding if g.attached and not g.slipped()]
+                    holding = [g for g in holding if g.attached and not g.gives(movable)]
                 if watched:
                     gripped = [g for g in watched if g.grip_if_between()]
                     if gripped:
