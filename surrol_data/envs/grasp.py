@@ -38,8 +38,8 @@
    period it may be carried kinematically instead (``carry``, chosen by adaptive_steps.SubstepPlanner where the
    env asks for it): the constraint is taken out of the solver, the object out of the dynamics (massless, still,
    not colliding with the hand) and put at its pose in the hand after the period's physics steps (after each of
-   them while a probe looks: PsmEnv.substep_hook, without a forward-kinematics pass, see ``follow_seen``), and the wrist link carries the object's mass, inertia and weight
-   instead, so the arm is loaded as before. The constraint comes back (``restore``) with the frame it was made with
+   them while a probe looks: PsmEnv.substep_hook, without a forward-kinematics pass, see ``follow_seen``), and the
+   wrist link carries the object's mass, inertia and weight instead, so the arm is loaded as before. The constraint comes back (``restore``) with the frame it was made with
    before any period in which something could come near the object, and before the grasp lets go; the object then
    rejoins the dynamics where the hand has it, moving with the wrist.
    Why: a JOINT_FIXED constraint on the arm makes every physics step cost ~1.7× (PyBullet's multibody constraint

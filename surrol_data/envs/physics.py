@@ -273,7 +273,8 @@ def make_client(gui: bool = False, renderer: bool = True) -> Client:
 def configure(client: BulletClient) -> None:
     client.setGravity(*GRAVITY)
     client.setPhysicsEngineParameter(fixedTimeStep=TIME_STEP, numSolverIterations=SOLVER_ITERATIONS,
-                                     contactERP=CONTACT_ERP, erp=CONSTRAINT_ERP, numSubSteps=0, deterministicOverlappingPairs=1)
+                                     contactERP=CONTACT_ERP, erp=CONSTRAINT_ERP, numSubSteps=0,
+                                     deterministicOverlappingPairs=1)
 
 
 @contextlib.contextmanager

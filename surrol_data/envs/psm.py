@@ -357,9 +357,10 @@ class Psm:
 
     @property
     def jaw_limits(self) -> tuple:
-        """(lower, upper) joint limits of the two jaw joints, where PyBullet stops them now (see _create_body and
-        hold_blades)."""
-        return self._jaw_limits
+        """(lower, upper) joint limits of the two jaw joints, where PyBullet stops them (see _create_body). While the
+        blades hold an object each is also stopped on its closing side where it met the object (hold_blades), at its
+        motor's target: a blade moved towards that target stays within it, so the stop does not act on it."""
+        return _JAW_LOWER, _JAW_UPPER
 
     def _set_jaw_limits(self, lower: tuple, upper: tuple) -> None:
         lower, upper = tuple(float(x) for x in lower), tuple(float(x) for x in upper)
