@@ -113,6 +113,7 @@ class PsmEnv(gym.Env):
     # (benchmarks/physics_realism.py probes contacts there). Unset, it costs one attribute test per substep.
     substep_hook = None
     _closing: tuple = ()      # grasps whose jaws close during the current step (they may grip at any substep)
+    _constraint_erp = physics.DEFAULT_CONSTRAINT_ERP   # the world's non-contact ERP now (see _step_physics)
     _features_memo: dict | None = None   # id(tip pose) → (pose, its orientation features), see _orientation_features
 
     def __init__(self, render_mode: str | None = None, render_size: tuple[int, int] = (480, 360),
@@ -293,6 +294,11 @@ class PsmEnv(gym.Env):
         # Held objects' slip and press-in, watched after every physics step (Grasp.gives; a carried object has
         # neither).
         holding = [g for g in planner.grasps if g.attached and not g.carried]
+        erp = physics.CONSTRAINT_ERP if any(g.constraint is not None for g in planner.grasps) else \
+            physics.DEFAULT_CONSTRAINT_ERP
+        if erp != self._constraint_erp:   # (the weld's stiffness: see physics.CONSTRAINT_ERP)
+            self._constraint_erp = erp
+            self.client.setPhysicsEngineParameter(erp=erp)
         movable = set(self.dynamic_bodies()).union(arm.body for arm in arms) if watched or holding else ()
         for psm in arms:
             psm.plan_gravity_compensation()
