@@ -120,7 +120,6 @@ class Probe:
         self.step_touch: set[int] = set()       # tools that touched anything during this step
         self.held = {"blade": 0.0, "static": 0.0}   # a held object's deepest overlap with its hand's blades / statics
         self.time = 0.0
-        self._held: dict[int, tuple] = {}
 
     def attach(self, env) -> None:
         c = env.client
@@ -136,7 +135,6 @@ class Probe:
                       + [("tool-object", a, b) for a in self.tools for b in self.objects]
                       + [("object-static", a, b) for a in self.objects for b in self.static]
                       + [("object-object", a, b) for i, a in enumerate(self.objects) for b in self.objects[i + 1:]])
-        self._held = {}
         env.substep_hook = self
 
     def detach(self, env) -> None:
@@ -156,7 +154,6 @@ class Probe:
                 self.step_touch.add(tool)
         for k, g in enumerate(grasps_of(env)):
             if not g.attached:
-                self._held.pop(k, None)
                 continue
             for j in JAW_JOINTS:
                 for p in c.getClosestPoints(g.psm.body, g.object_id, 0.0, linkIndexA=j):
@@ -165,13 +162,9 @@ class Probe:
                 for p in c.getClosestPoints(g.object_id, s, 0.0):
                     self.held["static"] = max(self.held["static"], -p[8] / SCALING)
             rel = relative_pose(c, g.psm.body, g.object_id, getattr(g, "object_link", -1))
-            # A new hold (grip, take) starts a new reference; a carried object's weld restored is the same hold
-            # (grasp.py, 6. Carry: the constraint is re-made with the frame it had).
-            hold = g.hold_serial
-            first = self._held.setdefault(k, (hold, rel))
-            if first[0] != hold:
-                self._held[k] = first = (hold, rel)
-            slip = float(np.linalg.norm(rel - first[1])) / SCALING
+            # From where the hold began (the grasp's own reference: a hold made at reset, as NeedleRegrasp's, began
+            # before the probe looked); a carried object's weld restored is the same hold (grasp.py, 6. Carry).
+            slip = float(np.linalg.norm(rel - g.held_at)) / SCALING
             self.step_slip[k] = max(self.step_slip.get(k, 0.0), slip)
         self.time += time.perf_counter() - t
 

@@ -163,6 +163,11 @@ class Grasp:
             return 0.0
         return float(vector_norm(self._held_at)) / SCALING + self.max_slip_m
 
+    @property
+    def held_at(self) -> np.ndarray | None:
+        """Where (scaled, in the wrist-yaw link's frame) the held object sat when this hold began; None if none."""
+        return self._held_at
+
     def slip_m(self) -> float:
         """How far (real metres) the held object has moved in the hand since the weld formed."""
         if self._held_at is None:
