@@ -3,8 +3,10 @@
 1. **Squeeze.** While the jaw closes, the blades collide with the object and stop on it, so the jaw angle
    reads the object's width.
 2. **Grip.** Once both blades touch the object *on their inner faces* (contact normal across the closing gap,
-   contact point along the blade, not past its end) with the jaw still open by more than the thinnest object
-   leaves it, the object is fixed to the wrist at the pose it has in
+   contact point along the blade, not past its end), from outside it (``physics.GRASP_MAX_BLADE_DEPTH_M``), with
+   the two contact normals opposed (the object across the gap: a tip-pinch on two faces ~90° apart is not a grasp)
+   and the jaw still open by more than the thinnest object leaves it, the object is fixed to the wrist at the pose
+   it has in
    the hand by a constraint as strong as the squeeze's friction (``physics.GRASP_FRICTION_FORCE``), and each
    blade is held where it stopped (``Psm.hold_blades``: a jaw that met the object off its centre line stays
    turned). A closing jaw near the object is sub-stepped finely enough that no blade passes more than the touch
@@ -20,7 +22,9 @@
    once the first lets go) and would make carrying cost 2–3× the physics of a free move.
 4. **Drop.** The constraint's force is bounded (``physics.GRASP_MAX_FORCE``); pulled harder (the object caught on
    a peg, pushed into the board), the object slips in the hand, and past ``physics.GRASP_MAX_SLIP_M`` it is
-   dropped: the weld goes, the jaw closes, ``drops`` counts it. Opening the jaw releases.
+   dropped: the weld goes, the jaw closes, ``drops`` counts it; checked after every physics step (``gives``), as is
+   a held object pressed into a static body past ``physics.GRASP_MAX_PRESS_M``, which slips out the same way.
+   Opening the jaw releases.
 5. **Hand-over.** One constraint at a time drives an object. A jaw that closes on an object another arm's grasp
    (a ``peer``) already holds stops on it as in 2 and holds it *by its blades alone*: no constraint, and its blades
    keep colliding with the object, so it is squeezed and pushed by real contacts (``passive``; it counts as holding).
