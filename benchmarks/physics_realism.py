@@ -11,7 +11,16 @@ random actions). A probe installed as the env's ``substep_hook`` measures after 
 
 * overlap (mm, real units) = the deepest penetration (negative ``getClosestPoints`` distance) per pair class:
   tool↔static (table, tray, board), tool↔object, object↔static, object↔object;
-* held-object slip (mm): how far a held object has moved from where it sat in the hand when grasped.
+* held-object slip (mm): how far a held object has moved from where it sat in the hand when grasped;
+* held-object overlap (mm): a held object's deepest overlap with the blades holding it and with static bodies
+  (press-through).
+
+The probe reads state without changing it: no forward-kinematics pass (the wrist's frame comes from a blade's stored
+frame), so an episode is bit-identical with and without it (tests/test_held_objects.py).
+
+Held runs (``held-bang-bang``, ``held-spin``, ``held-press``) take the oracle until a hand has welded its object,
+then give rough input with that hand's jaw kept closed; ``chatter`` closes and lifts a jaw just above a jack and
+counts tip-pinch lifts.
 
 Per episode it also counts objects that end below their support (centre of mass under the floor they rest on)
 or out of the workspace, objects left inside a static body (> 1 mm at the end), drops (a grasp lost while the
@@ -46,6 +55,16 @@ TASKS = ["NeedleReach", "GauzeRetrieve", "NeedlePick", "PegTransfer", "NeedleReg
          "PickAndPlace", "MatchBoard", "MatchBoardPanel", "PegBoard", "NeedleRings"]
 POLICIES = ["random", "bang-bang", "oracle"]
 SCENARIOS = ["poke", "swipe", "drop", "tracking"]
+# Rough input while holding: the oracle until a hand has welded its object, then HELD_STEPS steps of bang-bang
+# actions, of the wrist spun back and forth at full speed, or of the tool pushed straight down, that hand's jaw
+# kept closed; and a jaw chattering just above a jack (a tip-pinch must not lift it).
+HELD_RUNS = ["held-bang-bang", "held-spin", "held-press"]
+HELD_STEPS = 40
+HELD_TASKS = [t for t in ["NeedleReach", "GauzeRetrieve", "NeedlePick", "PegTransfer", "NeedleRegrasp",
+                          "BiPegTransfer", "PickAndPlace", "MatchBoard", "MatchBoardPanel", "PegBoard", "NeedleRings"]
+              if t != "NeedleReach"]   # (NeedleReach's jaw is blocked closed)
+CHATTER_TASKS = ["PickAndPlace"]
+CHATTER_HEIGHT_M = 0.003   # above the oracle's grasp point on a jack's upward arm: the blade ends reach its sides
 GRASPING_TASKS = ["GauzeRetrieve", "NeedlePick", "PegTransfer"]      # poke/swipe targets (single arm, jaw free)
 DROP_TASKS = ["GauzeRetrieve", "NeedlePick", "PegTransfer"]          # gauze→tray floor, needle→pad, block→board
 INSIDE_TOLERANCE_M = 0.001
@@ -76,9 +95,15 @@ class Result:
     tracked_moves: int = 0          # free-space moves the tracking error is the worst of
     successes: int = 0
 
+    held_blade: float = 0.0         # a held object's deepest overlap with a blade of the hand holding it
+    held_static: float = 0.0        # ... and with a static body (press-through)
+    tip_pinch_lifts: int = 0        # objects lifted by a grasp whose blades did not have it between their faces
+
     def merge_overlaps(self, probe: "Probe") -> None:
         for k, v in probe.overlap.items():
             self.overlap[k] = max(self.overlap[k], v)
+        self.held_blade = max(self.held_blade, probe.held["blade"])
+        self.held_static = max(self.held_static, probe.held["static"])
 
 
 # ---------------------------------------------------------------------- probe
@@ -93,8 +118,8 @@ class Probe:
         self.overlap = {k: 0.0 for k in OVERLAP_CLASSES}
         self.step_slip: dict[int, float] = {}   # per arm, the largest slip of its held object during this step
         self.step_touch: set[int] = set()       # tools that touched anything during this step
+        self.held = {"blade": 0.0, "static": 0.0}   # a held object's deepest overlap with its hand's blades / statics
         self.time = 0.0
-        self._held: dict[int, tuple] = {}
 
     def attach(self, env) -> None:
         c = env.client
@@ -110,7 +135,6 @@ class Probe:
                       + [("tool-object", a, b) for a in self.tools for b in self.objects]
                       + [("object-static", a, b) for a in self.objects for b in self.static]
                       + [("object-object", a, b) for i, a in enumerate(self.objects) for b in self.objects[i + 1:]])
-        self._held = {}
         env.substep_hook = self
 
     def detach(self, env) -> None:
@@ -130,16 +154,17 @@ class Probe:
                 self.step_touch.add(tool)
         for k, g in enumerate(grasps_of(env)):
             if not g.attached:
-                self._held.pop(k, None)
                 continue
+            for j in JAW_JOINTS:
+                for p in c.getClosestPoints(g.psm.body, g.object_id, 0.0, linkIndexA=j):
+                    self.held["blade"] = max(self.held["blade"], -p[8] / SCALING)
+            for s in self.static:
+                for p in c.getClosestPoints(g.object_id, s, 0.0):
+                    self.held["static"] = max(self.held["static"], -p[8] / SCALING)
             rel = relative_pose(c, g.psm.body, g.object_id, getattr(g, "object_link", -1))
-            # A new hold (grip, take) starts a new reference; a carried object's weld restored is the same hold
-            # (grasp.py, 6. Carry: the constraint is re-made with the frame it had).
-            hold = g.hold_serial
-            first = self._held.setdefault(k, (hold, rel))
-            if first[0] != hold:
-                self._held[k] = first = (hold, rel)
-            slip = float(np.linalg.norm(rel - first[1])) / SCALING
+            # From where the hold began (the grasp's own reference: a hold made at reset, as NeedleRegrasp's, began
+            # before the probe looked); a carried object's weld restored is the same hold (grasp.py, 6. Carry).
+            slip = float(np.linalg.norm(rel - g.held_at)) / SCALING
             self.step_slip[k] = max(self.step_slip.get(k, 0.0), slip)
         self.time += time.perf_counter() - t
 
@@ -159,14 +184,23 @@ def has_collision_shape(c, body: int) -> bool:
     return False
 
 
+def wrist_frame(c, body: int) -> tuple:
+    """The wrist-yaw (EEF) link's world frame as the last physics step left it, read without a forward-kinematics
+    pass (which would move the solver's next result, see Probe): blade 6's stored frame (a link with a collision
+    shape, updated by the step) turned back by its joint (the blade turns about the wrist-yaw link's z)."""
+    blade = c.getLinkState(body, JAW_JOINTS[0])
+    half = 0.5 * c.getJointState(body, JAW_JOINTS[0])[0]
+    return c.multiplyTransforms(blade[4], blade[5], [0, 0, 0], [0, 0, -np.sin(half), np.cos(half)])
+
+
 def relative_pose(c, body: int, obj: int, link: int = -1) -> np.ndarray:
     """The held object's (its base's, or its ``link``'s) position in the wrist (EEF) frame, scaled units."""
-    eef = c.getLinkState(body, 5, computeForwardKinematics=True)
+    eef = wrist_frame(c, body)
     if link < 0:
         pos, quat = c.getBasePositionAndOrientation(obj)
     else:
-        pos, quat = c.getLinkState(obj, link, computeForwardKinematics=True)[:2]
-    inv_p, inv_q = c.invertTransform(eef[4], eef[5])
+        pos, quat = c.getLinkState(obj, link)[:2]   # (a drawer's handle: a link with a collision shape)
+    inv_p, inv_q = c.invertTransform(eef[0], eef[1])
     return np.asarray(c.multiplyTransforms(inv_p, inv_q, pos, quat)[0])
 
 
@@ -180,7 +214,7 @@ def between_blades(c, body: int, obj: int) -> bool:
     if q[1] - q[0] < _MIN_OPENING_RAD:
         return False
     for j, towards_other in zip(JAW_JOINTS, (-1.0, 1.0)):
-        link = c.getLinkState(body, j, computeForwardKinematics=True)
+        link = c.getLinkState(body, j)   # (a blade has a collision shape: its stored frame is the step's)
         inv_p, inv_q = c.invertTransform(link[4], link[5])
         ok = False
         for p in c.getClosestPoints(body, obj, 0.0005 * SCALING, linkIndexA=j):
@@ -446,10 +480,88 @@ def run_tracking(task: str, episodes: int) -> Result:
     return res
 
 
+def hold_then(env, task: str, res: Result, probe: Probe, obs, steps: int = 150):
+    """The oracle until some hand has welded its object; returns (the observation, that arm) or None."""
+    u = env.unwrapped
+    for _ in range(steps):
+        held = [g.welded for g in grasps_of(u)]
+        if any(held):
+            return obs, held.index(True)
+        action = u.oracle_action(obs)
+        obs, _, _ = timed_step(env, action, res, probe, [a < 0 for a in np.asarray(action).reshape(-1, 5)[:, 4]])
+    return None
+
+
+def run_held(task: str, kind: str, episodes: int, seeds=None) -> Result:
+    """Rough input while holding (HELD_RUNS): the oracle until a hand has welded its object, then HELD_STEPS steps
+    of bang-bang actions, of the wrist spun back and forth at full speed (the other axes still), or of the tool
+    pushed straight down, that hand's jaw commanded closed throughout."""
+    env = gym.make(env_id(task))
+    u = env.unwrapped
+    res = Result(task, kind)
+    dim = env.action_space.shape[0]
+    for seed, obs, probe in probed_episodes(env, task, res, range(episodes) if seeds is None else seeds):
+        held = hold_then(env, task, res, probe, obs)
+        if held is None:
+            continue
+        obs, arm = held
+        rng = np.random.default_rng(1000 + seed)
+        hold, action = 0, np.zeros(dim)
+        for i in range(HELD_STEPS):
+            if kind == "held-bang-bang":
+                if hold == 0:
+                    action, hold = rng.choice([-1.0, 1.0], dim), int(rng.integers(1, 5))
+                hold = max(hold - 1, 0)
+            else:
+                action = np.zeros(dim)
+                if kind == "held-spin":
+                    action[5 * arm + 3] = 1.0 if (i // 4) % 2 == 0 else -1.0
+                else:
+                    action[5 * arm + 2] = -1.0
+            a = np.array(action, dtype=float)
+            a[5 * arm + 4] = -1.0
+            timed_step(env, a, res, probe, [x < 0 for x in a.reshape(-1, 5)[:, 4]])
+    return res
+
+
+def run_chatter(task: str, episodes: int, seeds=None) -> Result:
+    """A jaw chattering CHATTER_HEIGHT_M above the oracle's grasp point on a jack's upward arm: closed for 2 steps,
+    lifted 9 mm closed, opened and lowered back, 8 times per episode. Where the blade ends reach the arm's sides from
+    above, a grasp there is a tip-pinch (contact normals ~90° apart); counted as a tip-pinch lift when a jack rose
+    more than 5 mm with the jaw holding it."""
+    env = gym.make(env_id(task))
+    u = env.unwrapped
+    res = Result(task, "chatter")
+    c = u.client
+    for seed, obs, probe in probed_episodes(env, task, res, range(episodes) if seeds is None else seeds):
+        while u._wp_index < 2:   # the oracle's approach over its first jack, jaw open
+            obs, _, _ = timed_step(env, u.oracle_action(obs), res, probe, [False])
+        wp = u.oracle_waypoints[2]
+        target = (wp["target"](obs) if callable(wp["target"]) else wp["target"]) + [0.0, 0.0, CHATTER_HEIGHT_M]
+        move_tip(env, target, 0.5, res, probe, steps=20, gain=0.5)
+        for _ in range(8):
+            before = np.array([c.getBasePositionAndOrientation(j)[0][2] for j in u.jacks])
+            for _ in range(2):
+                _, info, _ = timed_step(env, np.array([0, 0, 0, 0, -1.0]), res, probe, [True])
+            for _ in range(3):
+                _, info, _ = timed_step(env, np.array([0, 0, 0.6, 0, -1.0]), res, probe, [True])
+            after = np.array([c.getBasePositionAndOrientation(j)[0][2] for j in u.jacks])
+            if info["grasped"] and np.max(after - before) / SCALING > 0.005:
+                res.tip_pinch_lifts += 1
+            timed_step(env, np.array([0, 0, 0, 0, 1.0]), res, probe, [False])
+            for _ in range(3):
+                timed_step(env, np.array([0, 0, -0.6, 0, 1.0]), res, probe, [False])
+    return res
+
+
 def run_job(job: tuple) -> Result:
     task, run, episodes = job
     if run in POLICIES:
         return run_policy(task, run, episodes)
+    if run in HELD_RUNS:
+        return run_held(task, run, episodes)
+    if run == "chatter":
+        return run_chatter(task, episodes)
     if run in ("poke", "swipe"):
         return run_poke_swipe(task, run, episodes)
     if run == "drop":
@@ -465,6 +577,8 @@ def jobs_for(tasks: list[str], runs: list[str], episodes: int) -> list[tuple]:
                 continue
             if run == "drop" and task not in DROP_TASKS:
                 continue
+            if (run in HELD_RUNS and task not in HELD_TASKS) or (run == "chatter" and task not in CHATTER_TASKS):
+                continue
             jobs.append((task, run, episodes))
     # Longest first, so the two workers finish together.
     weight = {"BiPegTransfer": 4, "PegTransfer": 3, "NeedleRegrasp": 2}
@@ -476,11 +590,12 @@ def print_table(results: list[Result], episodes: int) -> None:
                         "max over every physics substep; targets: overlap ≤ 1.0, slip ≤ 2 or a counted drop, "
                         "0 tunnelled / inside / not-between grasps, tracking ≤ 10 %)")
     cols = ["task", "run", "tool↔static", "tool↔object", "object↔static", "object↔object", "below support",
-            "out of ws", "left inside", "grasps", "not between", "drops", "max slip", "tracking err",
+            "out of ws", "left inside", "grasps", "not between", "drops", "max slip", "held↔blade",
+            "held↔static", "tip-pinch lifts", "tracking err",
             "success", "steps/s"]
     for col in cols:
         table.add_column(col, justify="left" if col in ("task", "run") else "right")
-    order = {r: i for i, r in enumerate(POLICIES + SCENARIOS)}
+    order = {r: i for i, r in enumerate(POLICIES + SCENARIOS + HELD_RUNS + ["chatter"])}
     for r in sorted(results, key=lambda r: (TASKS.index(r.task), order[r.run])):
         def mm(v, limit=1.0):
             s = f"{1000 * v:.2f}"
@@ -491,19 +606,21 @@ def print_table(results: list[Result], episodes: int) -> None:
 
         table.add_row(r.task, r.run, *(mm(r.overlap[k]) for k in OVERLAP_CLASSES),
                       count(r.below_support), count(r.out_of_workspace), count(r.left_inside), str(r.grasps),
-                      count(r.grasps_not_between), str(r.drops), mm(r.max_slip, 2.0),
+                      count(r.grasps_not_between), str(r.drops), mm(r.max_slip, 2.0), mm(r.held_blade),
+                      mm(r.held_static), count(r.tip_pinch_lifts),
                       "—" if r.tracking_error is None else
                       (f"{100 * r.tracking_error:.1f} % of {r.tracked_moves}" if r.tracking_error <= 0.1
                        else f"[red]{100 * r.tracking_error:.1f} % of {r.tracked_moves}[/red]"),
                       f"{r.successes}/{r.episodes}" if r.run == "oracle" else "—",
                       f"{r.steps / r.step_time:.0f}" if r.step_time else "—")
-    Console(width=220).print(table)
+    Console(width=260).print(table)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--tasks", nargs="+", default=TASKS, choices=TASKS)
-    parser.add_argument("--runs", nargs="+", default=POLICIES + SCENARIOS, choices=POLICIES + SCENARIOS)
+    runs = POLICIES + SCENARIOS + HELD_RUNS + ["chatter"]
+    parser.add_argument("--runs", nargs="+", default=runs, choices=runs)
     parser.add_argument("--episodes", type=int, default=30, help="episodes per task and run (≥ 30 for the study)")
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()

@@ -120,7 +120,12 @@ def test_a_carried_gauze_let_go_falls_to_the_floor_as_a_body_again():
     assert c.getDynamicsInfo(u.psm.body, EEF_LINK)[0] == physics.PSM_LINK_MASS
     for _ in range(10):
         obs, _, _, _, info = env.step(open_jaw)
-    assert u.gauze_pose()[0][2] == pytest.approx(objects.gauze_rest_height(), abs=5e-4)
+    # At rest on the tray's floor, flat or (it rebounds ~0.18 m/s off the floor from 16 mm, and where it comes down
+    # again is chaotic: with the weld stiffened while held, physics.CONSTRAINT_ERP) on an edge.
+    lowest = min(p[8] for b in _others(u) for p in c.getClosestPoints(u.object_id, b, 0.01 * SCALING)) / SCALING
+    assert -5e-4 <= lowest <= 5e-4
+    assert np.linalg.norm(c.getBaseVelocity(u.object_id)[0]) / SCALING < 1e-3
+    assert u.gauze_pose()[0][2] >= objects.gauze_rest_height() - 1e-3
     env.close()
 
 

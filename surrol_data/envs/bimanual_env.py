@@ -120,6 +120,7 @@ class BimanualEnv(PsmEnv):
         # hand-over by ~1 mm), and equal seeds must give equal episodes bit for bit. It costs ~3 ms.
         self.client.resetSimulation()
         physics.configure(self.client)
+        self._constraint_erp = physics.DEFAULT_CONSTRAINT_ERP
         self._build_world()
         if self.endoscope is not None:   # the camera=True option's still ECM went with the old world
             self.endoscope = SceneEndoscope(self.client, self.endoscope.size, scene_scale=SCALING,

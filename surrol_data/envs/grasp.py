@@ -3,8 +3,10 @@
 1. **Squeeze.** While the jaw closes, the blades collide with the object and stop on it, so the jaw angle
    reads the object's width.
 2. **Grip.** Once both blades touch the object *on their inner faces* (contact normal across the closing gap,
-   contact point along the blade, not past its end) with the jaw still open by more than the thinnest object
-   leaves it, the object is fixed to the wrist at the pose it has in
+   contact point along the blade, not past its end), from outside it (``physics.GRASP_MAX_BLADE_DEPTH_M``), with
+   the two contact normals opposed (the object across the gap: a tip-pinch on two faces ~90° apart is not a grasp)
+   and the jaw still open by more than the thinnest object leaves it, the object is fixed to the wrist at the pose
+   it has in
    the hand by a constraint as strong as the squeeze's friction (``physics.GRASP_FRICTION_FORCE``), and each
    blade is held where it stopped (``Psm.hold_blades``: a jaw that met the object off its centre line stays
    turned). A closing jaw near the object is sub-stepped finely enough that no blade passes more than the touch
@@ -20,7 +22,9 @@
    once the first lets go) and would make carrying cost 2–3× the physics of a free move.
 4. **Drop.** The constraint's force is bounded (``physics.GRASP_MAX_FORCE``); pulled harder (the object caught on
    a peg, pushed into the board), the object slips in the hand, and past ``physics.GRASP_MAX_SLIP_M`` it is
-   dropped: the weld goes, the jaw closes, ``drops`` counts it. Opening the jaw releases.
+   dropped: the weld goes, the jaw closes, ``drops`` counts it; checked after every physics step (``gives``), as is
+   a held object pressed into a static body past ``physics.GRASP_MAX_PRESS_M``, which slips out the same way.
+   Opening the jaw releases.
 5. **Hand-over.** One constraint at a time drives an object. A jaw that closes on an object another arm's grasp
    (a ``peer``) already holds stops on it as in 2 and holds it *by its blades alone*: no constraint, and its blades
    keep colliding with the object, so it is squeezed and pushed by real contacts (``passive``; it counts as holding).
@@ -38,8 +42,8 @@
    period it may be carried kinematically instead (``carry``, chosen by adaptive_steps.SubstepPlanner where the
    env asks for it): the constraint is taken out of the solver, the object out of the dynamics (massless, still,
    not colliding with the hand) and put at its pose in the hand after the period's physics steps (after each of
-   them while a probe looks: PsmEnv.substep_hook), and the wrist link carries the object's mass, inertia and weight
-   instead, so the arm is loaded as before. The constraint comes back (``restore``) with the frame it was made with
+   them while a probe looks: PsmEnv.substep_hook, without a forward-kinematics pass, see ``follow_seen``), and the
+   wrist link carries the object's mass, inertia and weight instead, so the arm is loaded as before. The constraint comes back (``restore``) with the frame it was made with
    before any period in which something could come near the object, and before the grasp lets go; the object then
    rejoins the dynamics where the hand has it, moving with the wrist.
    Why: a JOINT_FIXED constraint on the arm makes every physics step cost ~1.7× (PyBullet's multibody constraint
@@ -65,6 +69,7 @@ respawn bodies.
 
 from __future__ import annotations
 
+import math
 from typing import Callable
 
 import numpy as np
@@ -78,6 +83,9 @@ from surrol_data.envs.units import SCALING
 _TOUCH = physics.GRASP_CONTACT_DISTANCE_M * SCALING
 _BLADE_LENGTH = physics.BLADE_LENGTH_M * SCALING
 _ACROSS = np.cos(np.deg2rad(45.0))   # contact normal within 45° of the inner-face normal
+_OPPOSED = np.cos(np.deg2rad(45.0))  # the two blades' contact normals within 45° of opposite
+_MAX_DEPTH = physics.GRASP_MAX_BLADE_DEPTH_M * SCALING
+_MAX_PRESS = physics.GRASP_MAX_PRESS_M * SCALING
 _ORIGIN, _NO_TURN = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)
 _WORLD_FRAME = pb.WORLD_FRAME
 # Direction from each blade towards the other, in the blade's link frame (blade 6 lies on +x, blade 7 on −x).
@@ -118,27 +126,39 @@ class Grasp:
         return self.constraint is not None and self.object_id == object_id and self.object_link == object_link
 
     def between_blades(self) -> bool:
-        """Both blades touch the object on their inner faces, within the blade length, and the jaw is open
+        """Both blades touch the object on their inner faces, within the blade length, from outside it, with contact
+        normals opposed (the object lies across the gap between the faces), and the jaw is open
         (``physics.GRASP_MIN_OPENING_RAD``)."""
         if self.object_id < 0 or self.psm.jaw_angle() < physics.GRASP_MIN_OPENING_RAD:
             return False
-        return all(self._inner_face_touch(j, towards) for j, towards in zip(JAW_JOINTS, _TOWARDS_OTHER))
+        first = self._inner_face_normals(JAW_JOINTS[0], _TOWARDS_OTHER[0])
+        if not first:
+            return False
+        second = self._inner_face_normals(JAW_JOINTS[1], _TOWARDS_OTHER[1])
+        # A tip-pinch (the blade ends on two faces of a jack's arm ~90° apart) touches both inner faces within their
+        # 45° cones but squeezes nothing between them: it lifted PickAndPlace's jacks by the weld (tests/
+        # test_held_objects.py). The faces of a held object push the blades apart along one line.
+        return any(a[0] * b[0] + a[1] * b[1] + a[2] * b[2] < -_OPPOSED for a in first for b in second)
 
-    def _inner_face_touch(self, link: int, towards_other: float) -> bool:
+    def _inner_face_normals(self, link: int, towards_other: float) -> list:
+        """The contact normals (world, object → blade) of the blade's inner-face touches of the object; none if the
+        blade lies inside the object deeper than ``physics.GRASP_MAX_BLADE_DEPTH_M`` (a blade that closed through it,
+        or one left in it by a drop, does not touch it from outside)."""
         # (Run after every physics step while a jaw closes: PyBullet called positionally where it can.)
         cid = self.client._client
         points = pb.getClosestPoints(self.psm.body, self.object_id, _TOUCH, link, physicsClientId=cid)
-        if not points:
-            return False
+        if not points or min(p[8] for p in points) < -_MAX_DEPTH:
+            return []
         state = pb.getLinkState(self.psm.body, link, 0, 1, cid)
         inv_pos, inv_quat = pb.invertTransform(state[4], state[5])
+        normals = []
         for p in points:
             along = pb.multiplyTransforms(inv_pos, inv_quat, p[6], _NO_TURN)[0][1]
             normal_x = pb.multiplyTransforms(_ORIGIN, inv_quat, p[7], _NO_TURN)[0][0]
             # p[7] points from the object to the blade: for an inner-face touch, away from the other blade.
             if -towards_other * normal_x > _ACROSS and -_TOUCH <= along <= _BLADE_LENGTH:
-                return True
-        return False
+                normals.append(p[7])
+        return normals
 
     def held_offset_m(self) -> float:
         """How far (real metres) the held object's frame sits from the wrist's origin, at most: where it was
@@ -146,6 +166,11 @@ class Grasp:
         if self._held_at is None:
             return 0.0
         return float(vector_norm(self._held_at)) / SCALING + self.max_slip_m
+
+    @property
+    def held_at(self) -> np.ndarray | None:
+        """Where (scaled, in the wrist-yaw link's frame) the held object sat when this hold began; None if none."""
+        return self._held_at
 
     def slip_m(self) -> float:
         """How far (real metres) the held object has moved in the hand since the weld formed."""
@@ -164,6 +189,55 @@ class Grasp:
         if not self.attached and self.between_blades():
             self._grip()
         return self.attached
+
+    def gives(self, movable) -> bool:
+        """Called after every physics step while holding (not while carried: nothing makes a carried object slip nor
+        presses it into anything): the grasp gives, and the drop is counted, if the object has slipped past
+        ``max_slip_m`` in the hand or is pressed into a static body (anything not in ``movable``: the scene's objects
+        and the arms) deeper than ``physics.GRASP_MAX_PRESS_M``. Returns whether it was dropped.
+
+        Checked once per control step, a block slipped 5.15 mm in the middle of a step and was back within 0.26 mm at
+        its end, never counted (BiPegTransfer, bang-bang). Held by the weld, whose force limit is ten times what the
+        arm pushes with, an object pushed down on its board went into it instead of slipping in the hand (a block
+        1.32 mm into MatchBoard's board, a gauze 1.35 mm into its tray: PyBullet's solver does not resolve the chain
+        of motor, weld and contacts; 150 solver iterations mended the gauze but not the block, a weld as weak as the
+        grip the block but not the gauze)."""
+        if self.carried:
+            return False
+        if self._slip_now() > self.max_slip_m or self._pressed_in(movable):
+            self.drops += 1
+            self.release()
+            return True
+        return False
+
+    def _slip_now(self) -> float:
+        """slip_m after a physics step, read without a forward-kinematics pass (a third of this check's cost): the
+        wrist's frame from blade 6's (a link with a collision shape, whose stored frame the step left) turned back by
+        its joint (the blade turns about the wrist-yaw link's z)."""
+        cid = self.client._client
+        body = self.psm.body
+        blade = pb.getLinkState(body, JAW_JOINTS[0], 0, 0, cid)
+        half = 0.5 * pb.getJointState(body, JAW_JOINTS[0], cid)[0]
+        origin, turn = pb.multiplyTransforms(blade[4], blade[5], _ORIGIN, (0.0, 0.0, -np.sin(half), np.cos(half)))
+        if self.object_link < 0:
+            obj = pb.getBasePositionAndOrientation(self.object_id, cid)[0]
+        else:   # (a drawer's handle: a link with a collision shape)
+            obj = pb.getLinkState(self.object_id, self.object_link, 0, 0, cid)[0]
+        inv_pos, inv_quat = pb.invertTransform(origin, turn)
+        rel = pb.multiplyTransforms(inv_pos, inv_quat, obj, _NO_TURN)[0]
+        held = self._held_at
+        return math.sqrt((rel[0] - held[0]) ** 2 + (rel[1] - held[1]) ** 2 + (rel[2] - held[2]) ** 2) / SCALING
+
+    def _pressed_in(self, movable) -> bool:
+        """The held object (not a link: a drawer's handle is part of its cabinet) overlaps a static body deeper than
+        ``physics.GRASP_MAX_PRESS_M`` at one of its contacts (as the last physics step's collision pass found them)."""
+        if self.object_link >= 0:
+            return False
+        obj = self.object_id
+        for p in pb.getContactPoints(obj, physicsClientId=self.client._client):
+            if p[8] < -_MAX_PRESS and (p[2] if p[1] == obj else p[1]) not in movable:
+                return True
+        return False
 
     def update(self, closing: bool) -> None:
         if not closing:
@@ -231,22 +305,36 @@ class Grasp:
         pb.applyExternalTorque(self.psm.body, EEF_LINK, self._torque, _WORLD_FRAME, self.client._client)
 
     def follow(self, velocity: bool = False) -> None:
-        """While carried: the object at its pose in the hand (after a control period's physics steps, or after each
-        of them for a probe that looks); ``velocity``: moving with the wrist as well (when it rejoins the dynamics)."""
+        """While carried: the object at its pose in the hand (after a control period's physics steps); ``velocity``:
+        moving with the wrist as well (when it rejoins the dynamics)."""
         # (computeForwardKinematics=1: PyBullet's stored frame of a link without a collision shape is what the last
-        # forward-kinematics pass left, not what the last physics step did. Such a pass between two physics steps
-        # moves the solver's next result by ~1e-7 rad, so a probe that follows at every step changes the episode by
-        # that much, as the realism probe's own getLinkState calls do.)
+        # forward-kinematics pass left, not what the last physics step did.)
         cid = self.client._client
         eef = pb.getLinkState(self.psm.body, EEF_LINK, int(velocity), 1, cid)
         self._eef = (eef[4], eef[5])
-        pos, quat = pb.multiplyTransforms(eef[4], eef[5], *self._carry_at)
-        pb.resetBasePositionAndOrientation(self.object_id, pos, quat, cid)
+        pos = self._put(eef[4], eef[5])
         if velocity:
             v, w = eef[6], eef[7]
             rx, ry, rz = pos[0] - eef[4][0], pos[1] - eef[4][1], pos[2] - eef[4][2]
             pb.resetBaseVelocity(self.object_id, (v[0] + w[1] * rz - w[2] * ry, v[1] + w[2] * rx - w[0] * rz,
                                                   v[2] + w[0] * ry - w[1] * rx), w, cid)
+
+    def follow_seen(self) -> None:
+        """While carried, after each physics step for a probe that looks: the object where the hand has it, the wrist's
+        frame read from a blade's (a link with a collision shape, whose stored frame the physics step left) turned
+        back by the blade's joint. A forward-kinematics pass between two physics steps moves the solver's next
+        result by ~1e-7 rad, growing to millimetres: a probe must leave the episode as it is without it."""
+        cid = self.client._client
+        blade = pb.getLinkState(self.psm.body, JAW_JOINTS[0], 0, 0, cid)
+        angle = pb.getJointState(self.psm.body, JAW_JOINTS[0], cid)[0]
+        half = 0.5 * angle
+        origin, turn = pb.multiplyTransforms(blade[4], blade[5], _ORIGIN, (0.0, 0.0, -np.sin(half), np.cos(half)))
+        self._put(origin, turn)
+
+    def _put(self, origin, turn) -> None:
+        pos, quat = pb.multiplyTransforms(origin, turn, *self._carry_at)
+        pb.resetBasePositionAndOrientation(self.object_id, pos, quat, self.client._client)
+        return pos
 
     def _end_carry(self) -> None:
         """The object back in the dynamics, where the hand has it and moving with it; the wrist link as built."""

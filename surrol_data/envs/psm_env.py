@@ -113,6 +113,7 @@ class PsmEnv(gym.Env):
     # (benchmarks/physics_realism.py probes contacts there). Unset, it costs one attribute test per substep.
     substep_hook = None
     _closing: tuple = ()      # grasps whose jaws close during the current step (they may grip at any substep)
+    _constraint_erp = physics.DEFAULT_CONSTRAINT_ERP   # the world's non-contact ERP now (see _step_physics)
     _features_memo: dict | None = None   # id(tip pose) → (pose, its orientation features), see _orientation_features
 
     def __init__(self, render_mode: str | None = None, render_size: tuple[int, int] = (480, 360),
@@ -290,6 +291,15 @@ class PsmEnv(gym.Env):
         arms = [grasp.psm for grasp in planner.grasps]
         planner.plan_tools(physics.TIME_STEP, watched)
         carried = planner.carried
+        # Held objects' slip and press-in, watched after every physics step (Grasp.gives; a carried object has
+        # neither).
+        holding = [g for g in planner.grasps if g.attached and not g.carried]
+        erp = physics.CONSTRAINT_ERP if any(g.constraint is not None for g in planner.grasps) else \
+            physics.DEFAULT_CONSTRAINT_ERP
+        if erp != self._constraint_erp:   # (the weld's stiffness: see physics.CONSTRAINT_ERP)
+            self._constraint_erp = erp
+            self.client.setPhysicsEngineParameter(erp=erp)
+        movable = set(self.dynamic_bodies()).union(arm.body for arm in arms) if watched or holding else ()
         for psm in arms:
             psm.plan_gravity_compensation()
         if planner.free_arm is not None and self._move_free(planner.free_arm, steps, hook):
@@ -312,9 +322,14 @@ class PsmEnv(gym.Env):
                 step_simulation(cid)
                 if carried and hook is not None:
                     for grasp in carried:   # (a probe sees the carried object where it is at every step)
-                        grasp.follow()
+                        grasp.follow_seen()
+                if holding:
+                    holding = [g for g in holding if g.attached and not g.gives(movable)]
                 if watched:
-                    watched = [g for g in watched if not g.grip_if_between()]
+                    gripped = [g for g in watched if g.grip_if_between()]
+                    if gripped:
+                        watched = [g for g in watched if g not in gripped]
+                        holding += gripped
                 if hook is not None:
                     hook(self)
         for grasp in carried:
