@@ -31,33 +31,77 @@ def _fail(message: str) -> None:
     raise typer.Exit(code=2)
 
 
-def _disk_full(error: BaseException | None) -> bool:
-    """Whether ``error`` (or an error it was raised from: lerobot and pyarrow wrap them) is a full disk or quota."""
-    import errno
+def _write_error(error: BaseException | None) -> OSError | None:
+    """The failed file-system call behind ``error`` (itself, or an error it was raised from: lerobot and pyarrow wrap
+    them), when it is one of a disk's own failures (full, quota, read-only, I/O error, no permission); else None."""
+    from surrol_data.datasets.write_failure import disk_error
 
-    seen = 0
-    while error is not None and seen < 20:
-        if isinstance(error, OSError) and (error.errno in (errno.ENOSPC, errno.EDQUOT)
-                                           or "No space left on device" in str(error)):
-            return True
-        error, seen = error.__cause__ or error.__context__, seen + 1
-    return False
+    return disk_error(error)
+
+
+def _disk_full(error: BaseException | None) -> bool:
+    """Whether ``error`` (or an error it was raised from) is a failed write of the disk (see :func:`_write_error`)."""
+    return _write_error(error) is not None
 
 
 @contextlib.contextmanager
-def _disk_full_is_an_error(path: Path):
-    """A full disk ends the command with one line, not a traceback. What it wrote is safe (episodes are journalled
-    before ``record`` returns, files are replaced only once their new version is whole), so saying so is true."""
+def _disk_full_is_an_error(path: Path, kept=None):
+    """A failed write (a full disk, a read-only one, an I/O error) ends the command with one line, not a traceback,
+    that names what is kept and how to go on: ``kept()`` says it for this command (default: a dataset ``path`` a
+    recording or a repair was writing, see :func:`surrol_data.datasets.write_failure.what_is_kept`; it is given the
+    error). What was written
+    is safe (episodes are journalled before ``record`` returns, files are replaced only once their new version is
+    whole), so saying so is true."""
     try:
         yield
     except typer.Exit:  # a RuntimeError too (click's Exit): the command has already said why it stopped
         raise
-    except Exception as e:  # noqa: BLE001 - only a full disk is handled here; anything else is re-raised
-        if not _disk_full(e):
+    except Exception as e:  # noqa: BLE001 - only a failed write is handled here; anything else is re-raised
+        error = _write_error(e)
+        if error is None:
             raise
-        _fail(f"no space left on the disk that holds {path}: stopped; every episode finished before is kept (in "
-              f"the dataset or its journal). Free some space, then run the command again (a recording that "
-              f"stopped is repaired by `surrol-data repair {path}` or by the next command that opens it)")
+        from surrol_data.datasets.write_failure import describe, what_is_kept
+
+        _fail(f"{describe(error)} while writing {path}: stopped; "
+              f"{kept(error) if kept is not None else what_is_kept(path, error)}")
+
+
+def _inputs_unchanged(out: Path):
+    from surrol_data.datasets.write_failure import what_is_kept
+
+    return lambda error: what_is_kept(out, error, inputs="the inputs are unchanged")
+
+
+def _split_kept(out: Path):
+    from surrol_data.datasets.write_failure import what_is_kept
+
+    def kept(error) -> str:
+        parts = [what_is_kept(out / name, error, inputs="the input is unchanged") for name in ("train", "valid")
+                 if (out / name / "meta").is_dir()]
+        return " ".join(parts) or what_is_kept(out, error, inputs="the input is unchanged")
+
+    return kept
+
+
+def _upgrade_kept(dataset: Path):
+    from surrol_data.datasets.write_failure import remedy
+
+    return lambda error: (f"{dataset} is unchanged (the upgrade is built beside it and swapped in only once whole); "
+                          f"{remedy(error)}, then run the command again")
+
+
+def _each_file_whole(dataset: Path):
+    from surrol_data.datasets.write_failure import remedy
+
+    return lambda error: (f"every file of {dataset} is whole, the old version or the new one (each is replaced "
+                          f"only once written); {remedy(error)}, then run the command again")
+
+
+def _export_kept(out: Path, dataset: Path):
+    from surrol_data.datasets.write_failure import remedy
+
+    return lambda error: (f"nothing was written to {out} (a partial export never takes its name) and {dataset} is "
+                          f"unchanged; {remedy(error)}, then run the command again")
 
 
 @contextlib.contextmanager
@@ -922,7 +966,7 @@ def adopt(dataset: Path = typer.Argument(..., help="A dataset rewritten by lerob
     from surrol_data.datasets.reader import DatasetError
 
     try:
-        with _working(f"adopting {dataset} ..."), _disk_full_is_an_error(dataset):
+        with _working(f"adopting {dataset} ..."), _disk_full_is_an_error(dataset, _each_file_whole(dataset)):
             report = adopt_dataset(dataset, original)
     except DatasetError as e:
         _fail(str(e))
@@ -950,7 +994,7 @@ def merge(datasets: list[Path] = typer.Argument(..., help="Input dataset folders
         else:
             _fail("say where the merged dataset goes: surrol-data merge IN... --out OUT")
     try:
-        with _disk_full_is_an_error(out):
+        with _disk_full_is_an_error(out, _inputs_unchanged(out)):
             merge_datasets(out, datasets, command=_this_command(), drop_duplicates=drop_duplicates)
     except (DatasetError, ValueError, FileExistsError) as e:
         _fail(str(e))
@@ -972,7 +1016,7 @@ def filter_cmd(dataset: Path = typer.Argument(..., help="Dataset folder."),
         _fail("say which episodes to keep: --where EXPRESSION and/or --episodes 0,3,5-9")
     indices = _episode_indices(episodes)
     try:
-        with _disk_full_is_an_error(out):
+        with _disk_full_is_an_error(out, _inputs_unchanged(out)):
             filter_dataset(dataset, out, where, command=_this_command(), episodes=indices)
     except (DatasetError, ValueError, FileExistsError) as e:
         _fail(str(e))
@@ -992,7 +1036,7 @@ def split(dataset: Path = typer.Argument(..., help="Dataset folder."),
     from surrol_data.datasets.reader import DatasetError
 
     try:
-        with _disk_full_is_an_error(out):
+        with _disk_full_is_an_error(out, _split_kept(out)):
             parts = split_dataset(dataset, out, valid_fraction, seed, where=where, command=_this_command())
     except (DatasetError, ValueError, FileExistsError) as e:
         _fail(str(e))
@@ -1028,22 +1072,23 @@ def export(dataset: Path = typer.Argument(..., help="Dataset folder."),
 
     indices = _episode_indices(episodes)
     try:
-        if format is ExportFormat.robomimic:
-            from surrol_data.datasets.export_robomimic import export_robomimic
+        with _disk_full_is_an_error(out, _export_kept(out, dataset)):
+            if format is ExportFormat.robomimic:
+                from surrol_data.datasets.export_robomimic import export_robomimic
 
-            path = export_robomimic(dataset, out, where=where, valid_fraction=valid_fraction, seed=seed,
-                                    overwrite=overwrite, episodes=indices)
-            cameras = _cameras(dataset)
-            console.print(f"wrote {path}" + (f" (camera frames in obs/{cameras[0]}_image)" if cameras else ""))
-        else:
-            from surrol_data.datasets.export_minari import export_minari
+                path = export_robomimic(dataset, out, where=where, valid_fraction=valid_fraction, seed=seed,
+                                        overwrite=overwrite, episodes=indices)
+                cameras = _cameras(dataset)
+                console.print(f"wrote {path}" + (f" (camera frames in obs/{cameras[0]}_image)" if cameras else ""))
+            else:
+                from surrol_data.datasets.export_minari import export_minari
 
-            ds = export_minari(dataset, out, dataset_id=dataset_id, where=where, episodes=indices)
-            console.print(f"wrote Minari dataset {ds.spec.dataset_id!r} ({ds.total_episodes} episodes) under {out}; "
-                          f"load it with MINARI_DATASETS_PATH={out} and minari.load_dataset({ds.spec.dataset_id!r})")
-            if _cameras(dataset):
-                _note("the Minari export holds the state, goals, actions and rewards, not the camera frames; "
-                      "`--format robomimic` exports those too (obs/<camera>_image)")
+                ds = export_minari(dataset, out, dataset_id=dataset_id, where=where, episodes=indices)
+                console.print(f"wrote Minari dataset {ds.spec.dataset_id!r} ({ds.total_episodes} episodes) under {out}; "
+                              f"load it with MINARI_DATASETS_PATH={out} and minari.load_dataset({ds.spec.dataset_id!r})")
+                if _cameras(dataset):
+                    _note("the Minari export holds the state, goals, actions and rewards, not the camera frames; "
+                          "`--format robomimic` exports those too (obs/<camera>_image)")
     except (DatasetError, ValueError, FileExistsError, ImportError) as e:
         _fail(str(e))
 
@@ -1078,7 +1123,7 @@ def upgrade(dataset: Path = typer.Argument(..., help="Dataset folder written by 
     from surrol_data.datasets.upgrade import upgrade_dataset
 
     try:
-        with console.status(f"upgrading {dataset}"), _disk_full_is_an_error(dataset):
+        with console.status(f"upgrading {dataset}"), _disk_full_is_an_error(dataset, _upgrade_kept(dataset)):
             report = upgrade_dataset(dataset, keep_backup=keep_backup)
     except DatasetError as e:
         _fail(str(e))

@@ -296,6 +296,10 @@ class DatasetWriter:
         self._files_at_open: set[str] = set()
         self._lock = DatasetLock(self.root)
         self._created = False
+        # A write of this session failed (a full disk, an I/O error): lerobot's open files are in an unknown state,
+        # so nothing more is written through them (see _abandon); the journal holds every episode not yet in closed
+        # files, and the repair every command runs first rebuilds the dataset from it.
+        self._failed = False
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -408,31 +412,70 @@ class DatasetWriter:
             return
         try:
             with self._hold_signals():
-                if self._ds is None and self._unsaved:
-                    self._create_dataset()
-                if self._ds is not None:
-                    if self._ds.has_pending_frames():
-                        self._ds.clear_episode_buffer()
-                    lerobot_compat.write_episode_totals(self._ds)
-                    self._ds.finalize()
-                self._ds = None
-                self._durable = self._total_episodes_on_disk()
-                journal.drop_below(self.root, self._durable)   # an episode not in the files keeps its entry
-                if self._created and self._durable == 0:
-                    # Nothing was recorded (e.g. the first episode failed): leave no folder to block a retry.
-                    shutil.rmtree(self.root, ignore_errors=True)
+                if self._failed:
+                    self._abandon()
                     return
-                if self.consolidate:
-                    self._consolidate()
-                self._session["ended_at"] = utc_now_iso()
-                self._write_sidecar(checkpoint=True)
-                write_dataset_card(self.root)
+                try:
+                    self._finish()
+                except BaseException:
+                    self._failed = True
+                    self._abandon()
+                    raise
         finally:
             self._ds = None
             self._open = False
             self._unsaved.clear()
             self._lock.release()
             self._restore_signal_handlers()
+
+    def _finish(self) -> None:
+        """close() of a session whose writes all succeeded: the files' footers, then info.json, then the sidecar's
+        checkpoint, and only then the journal entries of the episodes now in closed files go."""
+        if self._ds is None and self._unsaved:
+            self._create_dataset()
+        if self._ds is not None:
+            if self._ds.has_pending_frames():
+                self._ds.clear_episode_buffer()
+            self._ds.finalize()
+            lerobot_compat.write_episode_totals(self._ds)
+            self._durable = self._ds.meta.total_episodes
+        else:
+            self._durable = self._total_episodes_on_disk()
+        self._ds = None
+        if self._created and self._durable == 0:
+            # Nothing was recorded (e.g. the first episode failed): leave no folder to block a retry.
+            if not journal.entries(self.root):
+                shutil.rmtree(self.root, ignore_errors=True)
+            return
+        self._write_sidecar(checkpoint=True)   # what is in the files, before the journal entries go
+        journal.drop_below(self.root, self._durable)   # an episode not in the files keeps its entry
+        if self.consolidate:
+            self._consolidate()
+        self._session["ended_at"] = utc_now_iso()
+        self._write_sidecar(checkpoint=True)
+        write_dataset_card(self.root)
+
+    def _abandon(self) -> None:
+        """End a session whose write failed without writing anything more: lerobot's finalize (and its garbage-
+        collection safety net) would flush buffered episode rows into files a failed write left in an unknown state,
+        and emptying the journal would trust them. So the journal is kept whole and the session is left unended: the
+        dataset is what a killed recording leaves, which every command repairs first (nothing finished is lost)."""
+        ds, self._ds = self._ds, None
+        if ds is None:
+            return
+        writer, meta = getattr(ds, "writer", None), getattr(ds, "meta", None)
+        image_writer = getattr(writer, "image_writer", None)
+        if image_writer is not None:
+            with contextlib.suppress(Exception):
+                image_writer.stop()
+        for obj, flag in ((ds, "_is_finalized"), (writer, "_finalized"), (meta, "_finalized")):
+            if obj is not None:
+                setattr(obj, flag, True)
+
+    @property
+    def failed(self) -> bool:
+        """Whether a write of this session failed (the dataset is then left to the repair, see :meth:`_abandon`)."""
+        return self._failed
 
     def _consolidate(self) -> None:
         """The files this session wrote, one per checkpoint, into as few as lerobot's size limit allows
@@ -563,12 +606,15 @@ class DatasetWriter:
                 self._unsaved.append((episode_data, columns))
                 self._since_checkpoint += 1
                 if len(self._unsaved) >= MAX_UNSAVED and not self._deferring_creation():
-                    self._create_dataset()   # memory stays bounded, whatever checkpoint_every is
+                    with self._stop_on_failure():
+                        self._create_dataset()   # memory stays bounded, whatever checkpoint_every is
             else:
                 try:
-                    self._save(episode_data, columns)
+                    with self._stop_on_failure():
+                        self._save(episode_data, columns)
                 except BaseException:
-                    journal.entry_path(self.root, episode_index).unlink(missing_ok=True)  # not recorded after all
+                    with contextlib.suppress(OSError):   # not recorded after all (a failing disk may keep it)
+                        journal.entry_path(self.root, episode_index).unlink(missing_ok=True)
                     raise
                 self._since_checkpoint += 1
             self._session["episodes"] = self._session.get("episodes", 0) + 1
@@ -591,15 +637,30 @@ class DatasetWriter:
         """Close every open file (finalize) and resume, so a hard kill cannot lose what is recorded so far."""
         if not self._open:
             raise RuntimeError("DatasetRecorder is not open")
-        with self._hold_signals():
+        with self._hold_signals(), self._stop_on_failure():
             if self._ds is None:
                 self._create_dataset()
             self._close_files_and_continue()
 
+    @contextlib.contextmanager
+    def _stop_on_failure(self):
+        """A failure inside the block is a failed write: nothing more is written this session (see _abandon)."""
+        if self._failed:
+            raise RuntimeError(f"{self.root}: an earlier write of this recording failed; nothing more is recorded")
+        try:
+            yield
+        except BaseException:
+            self._failed = True
+            raise
+
     def _close_files_and_continue(self) -> None:
-        lerobot_compat.write_episode_totals(self._ds)
-        if not lerobot_compat.close_files_and_continue(self._ds):
+        # The files' footers first, then info.json's totals: info.json never counts an episode whose file is
+        # unreadable (a full disk at the footer left it so), and the journal is emptied only after both.
+        if lerobot_compat.close_files_and_continue(self._ds):
+            lerobot_compat.write_episode_totals(self._ds)
+        else:
             self._ds.finalize()
+            lerobot_compat.write_episode_totals(self._ds)
             with hub_offline():
                 self._ds = _lerobot_dataset_class().resume(self.repo_id, root=lerobot_root(self.root),
                                                            video_backend=VIDEO_BACKEND)
