@@ -923,13 +923,20 @@ def _this_command() -> str:
 @app.command()
 def validate(dataset: Path = typer.Argument(..., help="Dataset folder."),
              reward: bool = typer.Option(True, help="Check rewards against the task's compute_reward (makes the env)."),
-             lerobot: bool = typer.Option(True, help="Check that LeRobotDataset reads it (imports lerobot, ~6 s).")):
+             lerobot: bool = typer.Option(True, help="Check that LeRobotDataset reads it (imports lerobot, ~6 s)."),
+             trust: Optional[str] = typer.Option(None, help="A public key (KEY.pub, or its 64 hex digits): also check "
+                                                 "that the dataset is signed by it and its seals are the ones signed.")):
     """Check schema, provenance, counts, NaN/inf, rewards and LeRobot readability; exit 1 listing each problem."""
     from surrol_data.datasets.validate import STAGES, validate_dataset
 
+    trusted = _trusted_key(trust) if trust is not None else None
     stages = tuple(s for s in STAGES if (s != "reward" or reward) and (s != "lerobot" or lerobot))
     with _stages(f"validate {dataset}", stages) as stage:
         problems = validate_dataset(dataset, check_reward=reward, check_lerobot=lerobot, progress=stage)
+    if trusted is not None and (dataset / "meta").is_dir():
+        from surrol_data.datasets.signing import verify
+
+        problems += [f"signature: {why}" for why in verify(dataset, trusted)]
     for problem in problems:
         console.print(f"[bold red]✗[/] {problem}", markup=True, highlight=False)
     if problems:
@@ -937,8 +944,78 @@ def validate(dataset: Path = typer.Argument(..., help="Dataset folder."),
         raise typer.Exit(code=1)
     from surrol_data.datasets.validated_cache import dataset_digest, remember_valid
 
-    remember_valid(dataset_digest(dataset))   # every check passed: the commands' own check may skip these bytes
+    remember_valid(dataset_digest(dataset))
+    if trusted is not None:
+        console.print(f"[green]✓[/] {dataset} is signed by the trusted key and its seals are the ones signed")   # every check passed: the commands' own check may skip these bytes
     console.print(f"[green]✓[/] {dataset} is a valid surrol_data dataset")
+
+
+def _trusted_key(spec: str):
+    from surrol_data.datasets.signing import load_public
+    from surrol_data.extras import MissingExtra
+
+    try:
+        return load_public(spec)
+    except (ValueError, MissingExtra) as e:   # DatasetError is a ValueError
+        _fail(str(e))
+
+
+def _sign_outputs(outputs: list[Path], key: Optional[Path]) -> None:
+    """Sign what merge / filter / split wrote, when given --key (their outputs are never signed otherwise)."""
+    if key is None:
+        return
+    from surrol_data.datasets.signing import sign
+    from surrol_data.extras import MissingExtra
+
+    for out in outputs:
+        try:
+            with _disk_full_is_an_error(out, _each_file_whole(out)):
+                entry = sign(out, key)
+        except (ValueError, MissingExtra) as e:
+            _fail(f"{out} was written but not signed: {e}")
+        console.print(f"signed {out} with key {entry['public_key'][:16]}…")
+
+
+def _key_option():
+    return typer.Option(None, "--key", help="Sign the output with this Ed25519 private key (see `surrol-data "
+                                            "keygen`); without it the output is not signed.")
+
+
+@app.command()
+def keygen(out: Path = typer.Option(..., help="The private key file to write (its public key goes to OUT.pub).")):
+    """Make an Ed25519 key pair for `sign` (private key OUT, mode 0600) and `validate --trust` (public key OUT.pub)."""
+    from surrol_data.datasets.signing import generate_key
+    from surrol_data.extras import MissingExtra
+
+    try:
+        private, public, hexkey = generate_key(out)
+    except (FileExistsError, MissingExtra) as e:
+        _fail(str(e))
+    console.print(f"wrote the private key {private} (keep it secret) and the public key {public} ({hexkey}); sign "
+                  f"with `surrol-data sign DATASET --key {private}`, check with `surrol-data validate DATASET "
+                  f"--trust {public}`", highlight=False)
+
+
+@app.command()
+def sign(dataset: Path = typer.Argument(..., help="Dataset folder (sealed)."),
+         key: Path = typer.Option(..., "--key", help="Ed25519 private key (PEM; `surrol-data keygen`).")):
+    """Sign a dataset's seals with an Ed25519 key, so that `validate --trust PUBKEY` can tell its provenance is the
+    one signed (the signer is shown by `info`)."""
+    from surrol_data.datasets.guard import require_valid
+    from surrol_data.datasets.reader import DatasetError
+    from surrol_data.datasets.signing import sign as sign_dataset
+    from surrol_data.extras import MissingExtra
+
+    try:
+        with _disk_full_is_an_error(dataset, _each_file_whole(dataset)):
+            target = require_valid(dataset, _note)
+            if target != dataset and target.resolve() != dataset.resolve():
+                _fail(f"{dataset} cannot be written here: copy it to a writable folder and sign the copy")
+            entry = sign_dataset(dataset, key)
+    except (DatasetError, MissingExtra) as e:
+        _fail(str(e))
+    console.print(f"signed {dataset} with key {entry['public_key']} ({len(entry['manifest_sha256'])}-digit manifest "
+                  f"digest {entry['manifest_sha256'][:16]}…)", highlight=False)
 
 
 @app.command()
@@ -978,7 +1055,8 @@ def adopt(dataset: Path = typer.Argument(..., help="A dataset rewritten by lerob
 def merge(datasets: list[Path] = typer.Argument(..., help="Input dataset folders (same task, fps and features)."),
           out: Optional[Path] = typer.Option(None, help="New dataset folder for the merged episodes."),
           drop_duplicates: bool = typer.Option(False, help="Keep one copy of episodes with equal content instead "
-                                                           "of refusing the merge (writes the episodes again).")):
+                                                           "of refusing the merge (writes the episodes again)."),
+          key: Optional[Path] = _key_option()):
     """Merge datasets into a new one with lerobot's aggregate_datasets (episodes renumbered; provenance, device
     traces and videos kept as they are; duplicate episodes refused)."""
     from surrol_data.datasets.merge import merge_datasets
@@ -999,6 +1077,7 @@ def merge(datasets: list[Path] = typer.Argument(..., help="Input dataset folders
     except (DatasetError, ValueError, FileExistsError) as e:
         _fail(str(e))
     console.print(f"merged {len(datasets)} dataset(s) into {out}")
+    _sign_outputs([out], key)
 
 
 @app.command("filter")
@@ -1007,7 +1086,8 @@ def filter_cmd(dataset: Path = typer.Argument(..., help="Dataset folder."),
                where: Optional[str] = typer.Option(None, help="Expression over provenance, e.g. "
                                                                "'skill == \"expert\" and success'."),
                episodes: Optional[str] = typer.Option(None, help="Episode indices, e.g. 0,3,5-9 (with --where: "
-                                                                 "those of them that match).")):
+                                                                 "those of them that match)."),
+               key: Optional[Path] = _key_option()):
     """Copy the episodes matching --where and/or listed by --episodes into a new dataset (provenance kept)."""
     from surrol_data.datasets.merge import filter_dataset
     from surrol_data.datasets.reader import DatasetError
@@ -1023,6 +1103,7 @@ def filter_cmd(dataset: Path = typer.Argument(..., help="Dataset folder."),
     said = " and ".join(x for x in (f"where {where}" if where else "", f"--episodes {episodes}" if episodes else "")
                         if x)
     console.print(f"wrote the episodes {said} to {out}")
+    _sign_outputs([out], key)
 
 
 @app.command()
@@ -1030,7 +1111,8 @@ def split(dataset: Path = typer.Argument(..., help="Dataset folder."),
           out: Path = typer.Option(..., help="Folder for the two new datasets OUT/train and OUT/valid."),
           valid_fraction: float = typer.Option(0.1, help="Fraction of each (source, skill, operator) group for valid."),
           seed: int = typer.Option(0, help="Seed of the shuffle."),
-          where: Optional[str] = typer.Option(None, help="Only episodes matching this expression.")):
+          where: Optional[str] = typer.Option(None, help="Only episodes matching this expression."),
+          key: Optional[Path] = _key_option()):
     """Split into train and valid datasets, stratified by source, skill and operator."""
     from surrol_data.datasets.merge import split_dataset
     from surrol_data.datasets.reader import DatasetError
@@ -1041,6 +1123,7 @@ def split(dataset: Path = typer.Argument(..., help="Dataset folder."),
     except (DatasetError, ValueError, FileExistsError) as e:
         _fail(str(e))
     console.print(f"wrote {parts['train']} and {parts['valid']}")
+    _sign_outputs([parts["train"], parts["valid"]], key)
 
 
 class ExportFormat(str, Enum):
@@ -1052,8 +1135,9 @@ def _cameras(dataset: Path) -> list[str]:
     """The camera names of a dataset, from its info.json alone (the dataset may be one read through a repaired
     view: its own files are not all readable)."""
     from surrol_data.datasets.reader import load_info
+    from surrol_data.datasets.readonly_view import view_of
 
-    return [k.removeprefix("observation.images.") for k, ft in load_info(dataset)["features"].items()
+    return [k.removeprefix("observation.images.") for k, ft in load_info(view_of(dataset) or dataset)["features"].items()
             if ft["dtype"] == "video" and k.startswith("observation.images.")]
 
 

@@ -21,6 +21,7 @@ OPTIONAL = {
     "tensorboard": ("tensorboard", "tensorboard"),
     "hydra_plugins.hydra_submitit_launcher": ("cluster", "hydra-submitit-launcher"),
     "submitit": ("cluster", "submitit"),
+    "cryptography": ("sign", "cryptography"),
 }
 
 

@@ -199,7 +199,9 @@ class DatasetWriter:
                  command: str | None = None, handle_signals: bool = True, fast_save: bool = True,
                  camera_version: int = CAMERA_VERSION, camera_renderer: str = DEFAULT_CAMERA_RENDERER,
                  lazy: bool = True, consolidate: bool = True):
-        self.root = Path(root)
+        from surrol_data.datasets.guard import new_output
+
+        self.root = new_output(root)   # a link to a folder still to be made: that folder
         # A new state-only dataset is created at the first checkpoint, not at open (see _open_lazily); lazy=False
         # creates it at open, e.g. for an interactive session, whose operator would rather wait before the first
         # episode than after it.
@@ -236,6 +238,11 @@ class DatasetWriter:
             raise FileExistsError(f"{self.root} already exists: add episodes to it with --append, "
                                   "or choose a new folder")
         if self._exists:
+            from surrol_data.datasets.readonly_view import is_writable
+
+            if not is_writable(self.root):   # before the repair an unfinished one needs, which could not be kept
+                raise DatasetError(f"{self.root} cannot be written here (a read-only disk or folder): to add episodes "
+                                   "to it, copy it to a writable folder and append there")
             if (self.root / "meta").is_dir():
                 # A recording killed before it created its LeRobot dataset left no info.json: the repair builds it.
                 self._before_append()
@@ -356,12 +363,19 @@ class DatasetWriter:
         is small) until the first checkpoint creates the LeRobot dataset (:meth:`_create_dataset`) and saves them,
         in order, as an eager open would have: the files are the same."""
         self.root.mkdir(parents=True, exist_ok=False)
-        (self.root / "meta").mkdir()
-        self._lock.acquire()
-        self._exists = True
-        self._created = True
-        self._durable = 0
-        self._start_session(checkpoint=False)
+        try:
+            (self.root / "meta").mkdir()
+            self._lock.acquire()
+            self._exists = True
+            self._created = True
+            self._durable = 0
+            self._start_session(checkpoint=False)
+        except BaseException:   # e.g. a full disk: nothing recorded, so nothing is left to block a retry
+            self._lock.release()
+            self._restore_signal_handlers()
+            self._open = False
+            shutil.rmtree(self.root, ignore_errors=True)
+            raise
 
     def _start_session(self, checkpoint: bool) -> None:
         self._open = True
@@ -751,6 +765,7 @@ class DatasetWriter:
 
     def _write_sidecar(self, checkpoint: bool = False) -> None:
         side = read_sidecar(self.root)
+        side.pop("signature", None)   # it covers the episodes before this session (signing.py): sign again after
         side.update(sidecar_facts(self.repo_id, self.task, self.env_id, self.task_description, self.robot_type))
         if self.dims["cameras"]:
             side["camera_version"] = self.camera_version
@@ -794,6 +809,8 @@ def _holds_no_episode(root: Path) -> bool:
     no readable row of episode metadata or frames. It holds nothing to keep."""
     from surrol_data.datasets.lock import writer_pid
 
+    if root.is_dir() and not any(root.iterdir()):
+        return True   # an empty folder (a recorder that failed at its first write left it)
     if not (root / "meta").is_dir() or writer_pid(root) is not None or journal.entries(root):
         return False
     for sub in (EPISODES_DIR, DATA_DIR):
