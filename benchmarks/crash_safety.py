@@ -577,7 +577,8 @@ def fault_campaign(work: Path, paths: list[str], errors: list[str], console: Con
         expected = {str(o): (_hashes(o) if o.suffix != ".hdf5" else list(range(6))) for o in outputs}
         sites = distinct_sites(counted["sites"])
         calls = list(sites.values()) if occurrences == "first" else list(range(len(counted["sites"])))
-        calls = calls[:limit] if limit else calls
+        if limit and len(calls) > limit:   # spread over the run: the first, the last and evenly between
+            calls = [calls[round(i * (len(calls) - 1) / (limit - 1))] for i in range(limit)] if limit > 1 else calls[:1]
         rows = []
         for error in errors:
             for k in calls:
@@ -626,7 +627,7 @@ def main() -> None:
     parser.add_argument("--faults", action="store_true", help="only part 3: fail every write site of every path")
     parser.add_argument("--fault-paths", nargs="+", default=list(FAULT_PATHS), choices=FAULT_PATHS)
     parser.add_argument("--fault-errors", nargs="+", default=list(FAULT_ERRORS), choices=FAULT_ERRORS)
-    parser.add_argument("--fault-sites", type=int, default=None, help="at most this many sites per path (a quick look)")
+    parser.add_argument("--fault-sites", type=int, default=None, help="at most this many sites per path, spread over the run (a quick look)")
     args = parser.parse_args()
     console = Console(width=150)
 

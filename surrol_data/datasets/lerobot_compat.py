@@ -202,8 +202,9 @@ def import_in_background() -> None:
         except BaseException:  # noqa: BLE001 - the caller's own import raises it again, where it is handled
             pass
 
-    _background_import = threading.Thread(target=run, name="surrol_data-import-lerobot", daemon=True)
-    _background_import.start()
+    thread = threading.Thread(target=run, name="surrol_data-import-lerobot", daemon=True)
+    thread.start()
+    _background_import = thread   # only a started thread is ever joined
 
 
 def background_import_running() -> bool:
