@@ -517,7 +517,7 @@ def fault_check(path: str, result: dict, outputs: list[Path], expected: dict, be
     if code not in (0, None) and isinstance(code, int):
         flat = " ".join(said.split())
         row["message_ok"] = (code == 2 and flat.count("error:") == 1
-                             and any(w in flat for w in ("kept", "unchanged", "nothing was written", "is whole")))
+                             and any(w in flat for w in ("kept", "unchanged", "nothing was written", "is whole", "left as it was")))
     finished: dict[str, list[str]] = {}
     for root, digest in result.get("finished", []):
         finished.setdefault(root, []).append(digest)

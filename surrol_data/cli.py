@@ -311,11 +311,19 @@ def _collect_shards(source, task, episodes, out, shards, launcher, seed, append,
     if append:
         _fail("--shards records new shards and merges them into a new dataset: leave out --append (merge the "
               "result into an existing dataset with `surrol-data merge`)")
-    try:
-        collect_script_shards(task, episodes, out, shards, seed=seed or 0, command=command, say=console.print,
-                              slurm=slurm_options if launcher is Launcher.slurm else None, **kwargs)
-    except (ValueError, FileExistsError, RuntimeError, DatasetError, SlurmError, MissingExtra) as e:
-        _fail(str(e))
+    from surrol_data.datasets.write_failure import what_is_kept
+
+    def kept(error) -> str:
+        return f"the shards recorded so far are kept in {out}.shards (each a dataset); " + what_is_kept(out, error)
+
+    with _disk_full_is_an_error(out, kept):
+        try:
+            collect_script_shards(task, episodes, out, shards, seed=seed or 0, command=command, say=console.print,
+                                  slurm=slurm_options if launcher is Launcher.slurm else None, **kwargs)
+        except (ValueError, FileExistsError, RuntimeError, DatasetError, SlurmError, MissingExtra) as e:
+            if _disk_full(e):
+                raise
+            _fail(str(e))
     console.print(f"recorded {episodes} episodes in {shards} shard(s) (disjoint seeds; kept in {out}.shards) and "
                   f"merged them into {out}")
 

@@ -120,8 +120,9 @@ class FaultInjector:
             "rmdir", "link", "symlink")}
 
         def open_(file, mode="r", *args, **kwargs):
-            writing = isinstance(mode, str) and any(c in mode for c in "wax+")
-            if writing and not isinstance(file, int):
+            # an open file descriptor (multiprocessing's pipes) is not a file on the disk
+            writing = isinstance(mode, str) and any(c in mode for c in "wax+") and not isinstance(file, int)
+            if writing:
                 injector.call("open", file)
             fh = real_open(file, mode, *args, **kwargs)
             return _File(fh, injector, str(file)) if writing else fh
