@@ -87,18 +87,6 @@ def _footerless(root: Path) -> list[Path]:
     return bad
 
 
-def new_output(out: str | Path) -> Path:
-    """The folder a command that makes a new dataset (or file) writes for ``--out out``: ``out`` itself, or, when it
-    is a symbolic link to a path that does not exist yet, that path (the link then leads to what was written;
-    written in the link's place, the output would have to replace the link)."""
-    import os
-
-    out = Path(out)
-    if out.is_symlink() and not out.exists():
-        return Path(os.path.realpath(out))
-    return out
-
-
 def require_dataset_folder(root: str | Path) -> None:
     """DatasetError unless ``root`` is a folder with a ``meta/`` folder: a path that is not there (a typo, a
     dataset not recorded yet) is not "damaged", and ``repair`` cannot help it."""

@@ -138,7 +138,8 @@ def copy_episodes(selection: list[tuple[str | Path, list[int]]], out: str | Path
     from surrol_data.datasets.recorder import DatasetRecorder
     from surrol_data.datasets.writer import _write_json_atomic
 
-    from surrol_data.datasets.guard import new_output, require_valid
+    from surrol_data.datasets.guard import require_valid
+    from surrol_data.datasets.output_path import new_output
 
     out = new_output(out)
     if out.exists():
@@ -244,7 +245,8 @@ def merge_datasets(out: str | Path, inputs: list[str | Path], *, command: str | 
     id, fps, robot type or features, and episodes equal in content to an earlier one (unless ``drop_duplicates``,
     which keeps the first copy and writes the episodes again instead of aggregating).
     """
-    from surrol_data.datasets.guard import new_output, require_valid
+    from surrol_data.datasets.guard import require_valid
+    from surrol_data.datasets.output_path import new_output
 
     out = new_output(out)
     if not inputs:
@@ -437,7 +439,8 @@ def split_dataset(src: str | Path, out: str | Path, valid_fraction: float = 0.1,
     """``out/train`` and ``out/valid`` (see :func:`~surrol_data.datasets.split.split_episodes`)."""
     from surrol_data.datasets.split import split_episodes
 
-    from surrol_data.datasets.guard import new_output, require_valid
+    from surrol_data.datasets.guard import require_valid
+    from surrol_data.datasets.output_path import new_output
 
     out = new_output(out)
     if out.exists():

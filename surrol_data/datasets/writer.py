@@ -199,7 +199,7 @@ class DatasetWriter:
                  command: str | None = None, handle_signals: bool = True, fast_save: bool = True,
                  camera_version: int = CAMERA_VERSION, camera_renderer: str = DEFAULT_CAMERA_RENDERER,
                  lazy: bool = True, consolidate: bool = True):
-        from surrol_data.datasets.guard import new_output
+        from surrol_data.datasets.output_path import new_output
 
         self.root = new_output(root)   # a link to a folder still to be made: that folder
         # A new state-only dataset is created at the first checkpoint, not at open (see _open_lazily); lazy=False
