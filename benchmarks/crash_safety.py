@@ -368,6 +368,253 @@ def fuzz_campaign(work: Path, console: Console) -> tuple[Table, dict]:
     return table, {"classes": len(CLASSES), **counts}
 
 
+# ---------------------------------------------------------------- part 3: every write site failed on purpose
+
+FAULT_PATHS = ("script", "workers", "shards", "haptic-operator", "intervene-operator", "camera", "append", "merge",
+               "filter", "split", "export", "upgrade", "repair")
+FAULT_ERRORS = ("ENOSPC", "EIO", "EROFS")
+# the dataset each path writes, relative to the trial folder, and whether it is also the input (then the episodes it
+# held before the run must all still be there)
+_IN_PLACE = ("append", "upgrade", "repair")
+
+
+def fault_bases(work: Path) -> dict:
+    """The inputs of the fault paths, built once (real recordings; the repair's is a killed recording: a finished
+    dataset whose journal holds two later episodes and whose last session never ended)."""
+    import json
+
+    from surrol_data.datasets import journal
+    from surrol_data.datasets.reader import DatasetReader
+
+    bases = _build_bases(work)
+    killed = work / "base_killed"
+    shutil.copytree(bases["script"], killed)
+    donor = DatasetReader(bases["haptic"])
+    for i in range(2):
+        provenance = {k: (v.item() if hasattr(v, "item") else v) for k, v in donor.episodes.iloc[i].items()
+                      if k in ("source", "device", "skill", "seed", "operator_id", "task", "env_id")}
+        journal.write_entry(killed, 6 + i, donor.trajectory(i), provenance)
+    side_path = killed / "meta" / "surrol_data.json"
+    side = json.loads(side_path.read_text())
+    side["sessions"][-1].pop("ended_at", None)
+    side_path.write_text(json.dumps(side))
+    bases["killed"] = killed
+    bases["schema1"] = Path(__file__).resolve().parents[1] / "tests" / "data" / "schema1" / "needle_pick"
+    return bases
+
+
+def fault_command(path: str, trial: Path, bases: dict) -> tuple[list[str], list[Path]]:
+    """(the command's arguments, the datasets it writes) of one fault trial in the folder ``trial``."""
+    s, h, p = str(bases["script"]), str(bases["haptic"]), str(bases["policy"])
+    out = trial / "out"
+    reach = ["--task", TASK, "--max-steps", "15", "--keep-failures"]
+    if path in _IN_PLACE:
+        shutil.copytree(bases[{"append": "script", "upgrade": "schema1", "repair": "killed"}[path]], out)
+    args = {
+        # 11 episodes: a checkpoint after the 10th, so the session ends by consolidating two files into one
+        "script": ["collect", "--source", "script", *reach, "--num-episodes", "11", "--out", str(out)],
+        "workers": ["collect", "--source", "script", *reach, "--num-episodes", "3", "--workers", "2", "--out",
+                    str(out)],
+        "shards": ["collect", "--source", "script", *reach, "--num-episodes", "4", "--shards", "2", "--out", str(out)],
+        "haptic-operator": ["collect", "--source", "haptic", "--device", "operator", "--skill", "expert",
+                            "--operator-id", "e1", "--task", TASK, "--num-episodes", "2", "--out", str(out)],
+        "intervene-operator": ["collect", "--source", "intervene", "--policy", p, "--device", "operator", "--skill",
+                               "expert", "--operator-id", "e1", "--task", TASK, "--num-episodes", "2",
+                               "--keep-failures", "--out", str(out)],
+        "camera": ["collect", "--source", "script", *reach, "--num-episodes", "2", "--camera", "--camera-size",
+                   "32x32", "--out", str(out)],
+        "append": ["collect", "--source", "script", *reach, "--num-episodes", "2", "--append", "--out", str(out)],
+        "merge": ["merge", s, h, "--out", str(out)],
+        "filter": ["filter", s, "--where", "seed >= 0", "--out", str(out)],
+        "split": ["split", s, "--out", str(out), "--valid-fraction", "0.3"],
+        "export": ["export", s, "--format", "robomimic", "--out", str(trial / "out.hdf5")],
+        "upgrade": ["upgrade", str(out)],
+        "repair": ["repair", str(out)],
+    }[path]
+    outputs = {"split": [out / "train", out / "valid"], "export": [trial / "out.hdf5"]}.get(path, [out])
+    return args, outputs
+
+
+def fault_run(args: list[str], log: Path, fail_at: int | None, error: str) -> dict:
+    """Fork; in the child run ``args`` under a :class:`FaultInjector` (``fail_at`` None: count the sites), reporting
+    the exit status, the sites called, the call failed and every finished episode (root, content hash)."""
+    import json
+
+    read_fd, write_fd = os.pipe()
+    real_write = os.write
+    pid = os.fork()
+    if pid == 0:
+        report: dict = {"code": None}
+        try:
+            os.close(read_fd)
+            fd = os.open(log, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+            os.dup2(fd, 1)
+            os.dup2(fd, 2)
+            import typer
+
+            from surrol_data.cli import app
+            from surrol_data.datasets.fault_injection import FaultInjector
+            from surrol_data.datasets.schema import content_hash
+            from surrol_data.datasets.writer import DatasetWriter
+
+            finished: list = []
+            original = DatasetWriter.record
+
+            def record(self, traj, provenance):
+                index = original(self, traj, provenance)
+                finished.append([str(self.root), content_hash(self._frame_arrays(traj), self.features)])
+                return index
+
+            DatasetWriter.record = record
+            injector = FaultInjector(fail_at, error)
+            with injector:
+                try:
+                    returned = typer.main.get_command(app).main(args=args, prog_name="surrol-data",
+                                                                standalone_mode=False)
+                    code = returned if isinstance(returned, int) else 0
+                except SystemExit as e:
+                    code = e.code if isinstance(e.code, int) else 1
+                except BaseException:  # noqa: BLE001 - an escaped exception is the finding
+                    import traceback
+
+                    traceback.print_exc()
+                    code = "traceback"
+            report = {"code": code, "sites": injector.sites, "failed": injector.failed, "finished": finished}
+        except BaseException as e:  # noqa: BLE001
+            report = {"code": f"harness: {type(e).__name__}: {e}"}
+        finally:
+            data = json.dumps(report).encode()
+            while data:
+                data = data[real_write(write_fd, data):]
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(0)
+    os.close(write_fd)
+    with os.fdopen(read_fd, "rb") as f:
+        raw = f.read()
+    os.waitpid(pid, 0)
+    return json.loads(raw) if raw else {"code": "child died"}
+
+
+def _hashes(root: Path) -> list[str]:
+    from surrol_data.datasets.reader import DatasetReader
+
+    return [str(h) for h in DatasetReader(root).episodes["content_hash"]]
+
+
+def fault_check(path: str, result: dict, outputs: list[Path], expected: dict, before: list[str], log: Path) -> dict:
+    """What one fault trial left: episodes lost / duplicated, tracebacks, whether the error was one line naming what is
+    kept, whether every output opens (after the automatic repair)."""
+    import h5py
+
+    from surrol_data.datasets.guard import ensure_finished
+    from surrol_data.datasets.writer import _holds_no_episode
+
+    said = log.read_text(errors="replace")
+    code = result.get("code")
+    row = {"lost": 0, "duplicated": 0, "traceback": code == "traceback" or "Traceback" in said or not isinstance(
+        code, int), "message_ok": True, "opens": True, "problem": ""}
+    if code not in (0, None) and isinstance(code, int):
+        flat = " ".join(said.split())
+        row["message_ok"] = (code == 2 and flat.count("error:") == 1
+                             and any(w in flat for w in ("kept", "unchanged", "nothing was written", "is whole", "left as it was")))
+    finished: dict[str, list[str]] = {}
+    for root, digest in result.get("finished", []):
+        finished.setdefault(root, []).append(digest)
+    for out in outputs:
+        must = set(finished.get(str(out), []))
+        if code == 0:
+            must |= set(expected.get(str(out), []))
+        if path in _IN_PLACE and path != "upgrade":
+            must |= set(before)
+        if out.suffix == ".hdf5":
+            if out.exists():
+                try:
+                    with h5py.File(out, "r") as f:
+                        row["opens"] &= len(f["data"]) == len(expected.get(str(out), [])) or code != 0
+                except Exception as e:  # noqa: BLE001
+                    row.update(opens=False, problem=f"{out.name}: {type(e).__name__}: {e}")
+            elif code == 0:
+                row.update(opens=False, problem="export said done but wrote no file")
+            continue
+        if not out.exists() or _holds_no_episode(out):
+            row["lost"] += len(must)
+            continue
+        try:
+            ensure_finished(out, lambda message: None)
+            present = _hashes(out)
+        except Exception as e:  # noqa: BLE001 - an output that cannot be opened is the finding
+            row.update(opens=False, problem=f"{out.name}: {type(e).__name__}: {str(e)[:200]}")
+            continue
+        row["lost"] += len(must - set(present))
+        row["duplicated"] += sum(present.count(h) - 1 for h in set(present) if present.count(h) > 1)
+    if path == "upgrade" and code != 0:   # the original must be as it was: all its episodes, schema 1
+        row["lost"] += 0 if outputs[0].exists() else 1
+    return row
+
+
+def fault_campaign(work: Path, paths: list[str], errors: list[str], console: Console, limit: int | None = None,
+                   occurrences: str = "first") -> tuple[Table, dict]:
+    """Every write site of every path × every error: count the sites in a clean run, then fail each in a run of its
+    own (its first call; ``occurrences="all"``: every call). ``limit``: at most that many sites per path."""
+    from surrol_data.datasets.fault_injection import distinct_sites
+
+    bases = fault_bases(work)
+    table = Table(title="Every write site failed on purpose (ENOSPC sticky for writes, EROFS sticky, EIO once)")
+    for col in ("path", "sites", "calls", "trials", "finished episodes", "lost", "duplicated", "tracebacks",
+                "one-line error", "opens"):
+        table.add_column(col, justify="left" if col == "path" else "right")
+    totals = {"sites": 0, "trials": 0, "lost": 0, "duplicated": 0, "tracebacks": 0, "bad_messages": 0,
+              "not_open": 0, "finished": 0}
+    for path in paths:
+        clean = work / f"faults_{path}_clean"
+        clean.mkdir()
+        args, outputs = fault_command(path, clean, bases)
+        before = _hashes(outputs[0]) if path in _IN_PLACE and path != "upgrade" else []
+        counted = fault_run(args, clean / "log", None, "ENOSPC")
+        if counted.get("code") != 0:
+            raise SystemExit(f"{path}: the run without faults failed ({counted.get('code')}); see {clean / 'log'}")
+        expected = {str(o): (_hashes(o) if o.suffix != ".hdf5" else list(range(6))) for o in outputs}
+        sites = distinct_sites(counted["sites"])
+        calls = list(sites.values()) if occurrences == "first" else list(range(len(counted["sites"])))
+        if limit and len(calls) > limit:   # spread over the run: the first, the last and evenly between
+            calls = [calls[round(i * (len(calls) - 1) / (limit - 1))] for i in range(limit)] if limit > 1 else calls[:1]
+        rows = []
+        for error in errors:
+            for k in calls:
+                trial = work / f"faults_{path}_{error}_{k:05d}"
+                trial.mkdir()
+                args, outputs = fault_command(path, trial, bases)
+                result = fault_run(args, trial / "log", k, error)
+                row = fault_check(path, result, [Path(str(o).replace(str(clean), str(trial))) for o in outputs],
+                                  {str(o).replace(str(clean), str(trial)): v for o, v in expected.items()},
+                                  before, trial / "log")
+                row["finished"] = len(result.get("finished", []))
+                rows.append(row)
+                bad = row["lost"] or row["duplicated"] or row["traceback"] or not row["message_ok"] or not row["opens"]
+                if bad:
+                    console.print(f"  {path} {error} call {k} ({result.get('failed')}): {row} log {trial / 'log'}")
+                else:
+                    shutil.rmtree(trial, ignore_errors=True)
+        agg = {key: sum(r[key] for r in rows) for key in ("lost", "duplicated", "finished")}
+        tracebacks = sum(r["traceback"] for r in rows)
+        messages = sum(r["message_ok"] for r in rows)
+        opens = sum(r["opens"] for r in rows)
+        table.add_row(path, str(len(sites)), str(len(counted["sites"])), str(len(rows)), str(agg["finished"]),
+                      str(agg["lost"]), str(agg["duplicated"]), str(tracebacks), f"{messages}/{len(rows)}",
+                      f"{opens}/{len(rows)}")
+        console.print(f"  {path}: {len(sites)} sites, {len(rows)} trials")
+        totals["sites"] += len(sites)
+        totals["trials"] += len(rows)
+        totals["lost"] += agg["lost"]
+        totals["duplicated"] += agg["duplicated"]
+        totals["finished"] += agg["finished"]
+        totals["tracebacks"] += tracebacks
+        totals["bad_messages"] += len(rows) - messages
+        totals["not_open"] += len(rows) - opens
+    return table, totals
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--trials", type=int, default=20, help="SIGKILL trials per writer path")
@@ -377,6 +624,10 @@ def main() -> None:
     parser.add_argument("--no-fuzz", action="store_true")
     parser.add_argument("--no-kills", action="store_true")
     parser.add_argument("--keep", action="store_true", help="keep the work folder (printed)")
+    parser.add_argument("--faults", action="store_true", help="only part 3: fail every write site of every path")
+    parser.add_argument("--fault-paths", nargs="+", default=list(FAULT_PATHS), choices=FAULT_PATHS)
+    parser.add_argument("--fault-errors", nargs="+", default=list(FAULT_ERRORS), choices=FAULT_ERRORS)
+    parser.add_argument("--fault-sites", type=int, default=None, help="at most this many sites per path, spread over the run (a quick look)")
     args = parser.parse_args()
     console = Console(width=150)
 
@@ -391,6 +642,20 @@ def main() -> None:
     work = Path(tempfile.mkdtemp(prefix="crash_safety_"))
     ok = True
     try:
+        if args.faults:
+            import h5py  # noqa: F401  (imported before the fork, so that the injector wraps its File)
+
+            console.print(f"fault campaign in {work} ...")
+            t0 = time.monotonic()
+            table, totals = fault_campaign(work, args.fault_paths, args.fault_errors, console, args.fault_sites)
+            console.print(table)
+            console.print(f"{totals['sites']} write sites, {totals['trials']} trials in {time.monotonic() - t0:.0f} s: "
+                          f"{totals['finished']} finished episodes, {totals['lost']} lost, {totals['duplicated']} "
+                          f"duplicated, {totals['tracebacks']} tracebacks, {totals['bad_messages']} errors not one "
+                          f"line naming what is kept, {totals['not_open']} outputs that do not open")
+            ok &= not (totals["lost"] or totals["duplicated"] or totals["tracebacks"] or totals["bad_messages"]
+                       or totals["not_open"])
+            args.no_kills = args.no_fuzz = True
         if not args.no_kills:
             console.print(f"kill campaign in {work} ...")
             t0 = time.monotonic()

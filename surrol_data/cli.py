@@ -31,33 +31,77 @@ def _fail(message: str) -> None:
     raise typer.Exit(code=2)
 
 
-def _disk_full(error: BaseException | None) -> bool:
-    """Whether ``error`` (or an error it was raised from: lerobot and pyarrow wrap them) is a full disk or quota."""
-    import errno
+def _write_error(error: BaseException | None) -> OSError | None:
+    """The failed file-system call behind ``error`` (itself, or an error it was raised from: lerobot and pyarrow wrap
+    them), when it is one of a disk's own failures (full, quota, read-only, I/O error, no permission); else None."""
+    from surrol_data.datasets.write_failure import disk_error
 
-    seen = 0
-    while error is not None and seen < 20:
-        if isinstance(error, OSError) and (error.errno in (errno.ENOSPC, errno.EDQUOT)
-                                           or "No space left on device" in str(error)):
-            return True
-        error, seen = error.__cause__ or error.__context__, seen + 1
-    return False
+    return disk_error(error)
+
+
+def _disk_full(error: BaseException | None) -> bool:
+    """Whether ``error`` (or an error it was raised from) is a failed write of the disk (see :func:`_write_error`)."""
+    return _write_error(error) is not None
 
 
 @contextlib.contextmanager
-def _disk_full_is_an_error(path: Path):
-    """A full disk ends the command with one line, not a traceback. What it wrote is safe (episodes are journalled
-    before ``record`` returns, files are replaced only once their new version is whole), so saying so is true."""
+def _disk_full_is_an_error(path: Path, kept=None):
+    """A failed write (a full disk, a read-only one, an I/O error) ends the command with one line, not a traceback,
+    that names what is kept and how to go on: ``kept()`` says it for this command (default: a dataset ``path`` a
+    recording or a repair was writing, see :func:`surrol_data.datasets.write_failure.what_is_kept`; it is given the
+    error). What was written
+    is safe (episodes are journalled before ``record`` returns, files are replaced only once their new version is
+    whole), so saying so is true."""
     try:
         yield
     except typer.Exit:  # a RuntimeError too (click's Exit): the command has already said why it stopped
         raise
-    except Exception as e:  # noqa: BLE001 - only a full disk is handled here; anything else is re-raised
-        if not _disk_full(e):
+    except Exception as e:  # noqa: BLE001 - only a failed write is handled here; anything else is re-raised
+        error = _write_error(e)
+        if error is None:
             raise
-        _fail(f"no space left on the disk that holds {path}: stopped; every episode finished before is kept (in "
-              f"the dataset or its journal). Free some space, then run the command again (a recording that "
-              f"stopped is repaired by `surrol-data repair {path}` or by the next command that opens it)")
+        from surrol_data.datasets.write_failure import describe, what_is_kept
+
+        _fail(f"{describe(error)} while writing {path}: stopped; "
+              f"{kept(error) if kept is not None else what_is_kept(path, error)}")
+
+
+def _inputs_unchanged(out: Path):
+    from surrol_data.datasets.write_failure import what_is_kept
+
+    return lambda error: what_is_kept(out, error, inputs="the inputs are unchanged")
+
+
+def _split_kept(out: Path):
+    from surrol_data.datasets.write_failure import what_is_kept
+
+    def kept(error) -> str:
+        parts = [what_is_kept(out / name, error, inputs="the input is unchanged") for name in ("train", "valid")
+                 if (out / name / "meta").is_dir()]
+        return " ".join(parts) or what_is_kept(out, error, inputs="the input is unchanged")
+
+    return kept
+
+
+def _upgrade_kept(dataset: Path):
+    from surrol_data.datasets.write_failure import remedy
+
+    return lambda error: (f"{dataset} is unchanged (the upgrade is built beside it and swapped in only once whole); "
+                          f"{remedy(error)}, then run the command again")
+
+
+def _each_file_whole(dataset: Path):
+    from surrol_data.datasets.write_failure import remedy
+
+    return lambda error: (f"every file of {dataset} is whole, the old version or the new one (each is replaced "
+                          f"only once written); {remedy(error)}, then run the command again")
+
+
+def _export_kept(out: Path, dataset: Path):
+    from surrol_data.datasets.write_failure import remedy
+
+    return lambda error: (f"nothing was written to {out} (a partial export never takes its name) and {dataset} is "
+                          f"unchanged; {remedy(error)}, then run the command again")
 
 
 @contextlib.contextmanager
@@ -267,11 +311,19 @@ def _collect_shards(source, task, episodes, out, shards, launcher, seed, append,
     if append:
         _fail("--shards records new shards and merges them into a new dataset: leave out --append (merge the "
               "result into an existing dataset with `surrol-data merge`)")
-    try:
-        collect_script_shards(task, episodes, out, shards, seed=seed or 0, command=command, say=console.print,
-                              slurm=slurm_options if launcher is Launcher.slurm else None, **kwargs)
-    except (ValueError, FileExistsError, RuntimeError, DatasetError, SlurmError, MissingExtra) as e:
-        _fail(str(e))
+    from surrol_data.datasets.write_failure import what_is_kept
+
+    def kept(error) -> str:
+        return f"the shards recorded so far are kept in {out}.shards (each a dataset); " + what_is_kept(out, error)
+
+    with _disk_full_is_an_error(out, kept):
+        try:
+            collect_script_shards(task, episodes, out, shards, seed=seed or 0, command=command, say=console.print,
+                                  slurm=slurm_options if launcher is Launcher.slurm else None, **kwargs)
+        except (ValueError, FileExistsError, RuntimeError, DatasetError, SlurmError, MissingExtra) as e:
+            if _disk_full(e):
+                raise
+            _fail(str(e))
     console.print(f"recorded {episodes} episodes in {shards} shard(s) (disjoint seeds; kept in {out}.shards) and "
                   f"merged them into {out}")
 
@@ -925,13 +977,20 @@ def _this_command() -> str:
 @app.command()
 def validate(dataset: Path = typer.Argument(..., help="Dataset folder."),
              reward: bool = typer.Option(True, help="Check rewards against the task's compute_reward (makes the env)."),
-             lerobot: bool = typer.Option(True, help="Check that LeRobotDataset reads it (imports lerobot, ~6 s).")):
+             lerobot: bool = typer.Option(True, help="Check that LeRobotDataset reads it (imports lerobot, ~6 s)."),
+             trust: Optional[str] = typer.Option(None, help="A public key (KEY.pub, or its 64 hex digits): also check "
+                                                 "that the dataset is signed by it and its seals are the ones signed.")):
     """Check schema, provenance, counts, NaN/inf, rewards and LeRobot readability; exit 1 listing each problem."""
     from surrol_data.datasets.validate import STAGES, validate_dataset
 
+    trusted = _trusted_key(trust) if trust is not None else None
     stages = tuple(s for s in STAGES if (s != "reward" or reward) and (s != "lerobot" or lerobot))
     with _stages(f"validate {dataset}", stages) as stage:
         problems = validate_dataset(dataset, check_reward=reward, check_lerobot=lerobot, progress=stage)
+    if trusted is not None and (dataset / "meta").is_dir():
+        from surrol_data.datasets.signing import verify
+
+        problems += [f"signature: {why}" for why in verify(dataset, trusted)]
     for problem in problems:
         console.print(f"[bold red]✗[/] {problem}", markup=True, highlight=False)
     if problems:
@@ -939,8 +998,78 @@ def validate(dataset: Path = typer.Argument(..., help="Dataset folder."),
         raise typer.Exit(code=1)
     from surrol_data.datasets.validated_cache import dataset_digest, remember_valid
 
-    remember_valid(dataset_digest(dataset))   # every check passed: the commands' own check may skip these bytes
+    remember_valid(dataset_digest(dataset))
+    if trusted is not None:
+        console.print(f"[green]✓[/] {dataset} is signed by the trusted key and its seals are the ones signed")   # every check passed: the commands' own check may skip these bytes
     console.print(f"[green]✓[/] {dataset} is a valid surrol_data dataset")
+
+
+def _trusted_key(spec: str):
+    from surrol_data.datasets.signing import load_public
+    from surrol_data.extras import MissingExtra
+
+    try:
+        return load_public(spec)
+    except (ValueError, MissingExtra) as e:   # DatasetError is a ValueError
+        _fail(str(e))
+
+
+def _sign_outputs(outputs: list[Path], key: Optional[Path]) -> None:
+    """Sign what merge / filter / split wrote, when given --key (their outputs are never signed otherwise)."""
+    if key is None:
+        return
+    from surrol_data.datasets.signing import sign
+    from surrol_data.extras import MissingExtra
+
+    for out in outputs:
+        try:
+            with _disk_full_is_an_error(out, _each_file_whole(out)):
+                entry = sign(out, key)
+        except (ValueError, MissingExtra) as e:
+            _fail(f"{out} was written but not signed: {e}")
+        console.print(f"signed {out} with key {entry['public_key'][:16]}…")
+
+
+def _key_option():
+    return typer.Option(None, "--key", help="Sign the output with this Ed25519 private key (see `surrol-data "
+                                            "keygen`); without it the output is not signed.")
+
+
+@app.command()
+def keygen(out: Path = typer.Option(..., help="The private key file to write (its public key goes to OUT.pub).")):
+    """Make an Ed25519 key pair for `sign` (private key OUT, mode 0600) and `validate --trust` (public key OUT.pub)."""
+    from surrol_data.datasets.signing import generate_key
+    from surrol_data.extras import MissingExtra
+
+    try:
+        private, public, hexkey = generate_key(out)
+    except (FileExistsError, MissingExtra) as e:
+        _fail(str(e))
+    console.print(f"wrote the private key {private} (keep it secret) and the public key {public} ({hexkey}); sign "
+                  f"with `surrol-data sign DATASET --key {private}`, check with `surrol-data validate DATASET "
+                  f"--trust {public}`", highlight=False)
+
+
+@app.command()
+def sign(dataset: Path = typer.Argument(..., help="Dataset folder (sealed)."),
+         key: Path = typer.Option(..., "--key", help="Ed25519 private key (PEM; `surrol-data keygen`).")):
+    """Sign a dataset's seals with an Ed25519 key, so that `validate --trust PUBKEY` can tell its provenance is the
+    one signed (the signer is shown by `info`)."""
+    from surrol_data.datasets.guard import require_valid
+    from surrol_data.datasets.reader import DatasetError
+    from surrol_data.datasets.signing import sign as sign_dataset
+    from surrol_data.extras import MissingExtra
+
+    try:
+        with _disk_full_is_an_error(dataset, _each_file_whole(dataset)):
+            target = require_valid(dataset, _note)
+            if target != dataset and target.resolve() != dataset.resolve():
+                _fail(f"{dataset} cannot be written here: copy it to a writable folder and sign the copy")
+            entry = sign_dataset(dataset, key)
+    except (DatasetError, MissingExtra) as e:
+        _fail(str(e))
+    console.print(f"signed {dataset} with key {entry['public_key']} ({len(entry['manifest_sha256'])}-digit manifest "
+                  f"digest {entry['manifest_sha256'][:16]}…)", highlight=False)
 
 
 @app.command()
@@ -968,7 +1097,7 @@ def adopt(dataset: Path = typer.Argument(..., help="A dataset rewritten by lerob
     from surrol_data.datasets.reader import DatasetError
 
     try:
-        with _working(f"adopting {dataset} ..."), _disk_full_is_an_error(dataset):
+        with _working(f"adopting {dataset} ..."), _disk_full_is_an_error(dataset, _each_file_whole(dataset)):
             report = adopt_dataset(dataset, original)
     except DatasetError as e:
         _fail(str(e))
@@ -980,7 +1109,8 @@ def adopt(dataset: Path = typer.Argument(..., help="A dataset rewritten by lerob
 def merge(datasets: list[Path] = typer.Argument(..., help="Input dataset folders (same task, fps and features)."),
           out: Optional[Path] = typer.Option(None, help="New dataset folder for the merged episodes."),
           drop_duplicates: bool = typer.Option(False, help="Keep one copy of episodes with equal content instead "
-                                                           "of refusing the merge (writes the episodes again).")):
+                                                           "of refusing the merge (writes the episodes again)."),
+          key: Optional[Path] = _key_option()):
     """Merge datasets into a new one with lerobot's aggregate_datasets (episodes renumbered; provenance, device
     traces and videos kept as they are; duplicate episodes refused)."""
     from surrol_data.datasets.merge import merge_datasets
@@ -996,11 +1126,12 @@ def merge(datasets: list[Path] = typer.Argument(..., help="Input dataset folders
         else:
             _fail("say where the merged dataset goes: surrol-data merge IN... --out OUT")
     try:
-        with _disk_full_is_an_error(out):
+        with _disk_full_is_an_error(out, _inputs_unchanged(out)):
             merge_datasets(out, datasets, command=_this_command(), drop_duplicates=drop_duplicates)
     except (DatasetError, ValueError, FileExistsError) as e:
         _fail(str(e))
     console.print(f"merged {len(datasets)} dataset(s) into {out}")
+    _sign_outputs([out], key)
 
 
 @app.command("filter")
@@ -1009,7 +1140,8 @@ def filter_cmd(dataset: Path = typer.Argument(..., help="Dataset folder."),
                where: Optional[str] = typer.Option(None, help="Expression over provenance, e.g. "
                                                                "'skill == \"expert\" and success'."),
                episodes: Optional[str] = typer.Option(None, help="Episode indices, e.g. 0,3,5-9 (with --where: "
-                                                                 "those of them that match).")):
+                                                                 "those of them that match)."),
+               key: Optional[Path] = _key_option()):
     """Copy the episodes matching --where and/or listed by --episodes into a new dataset (provenance kept)."""
     from surrol_data.datasets.merge import filter_dataset
     from surrol_data.datasets.reader import DatasetError
@@ -1018,13 +1150,14 @@ def filter_cmd(dataset: Path = typer.Argument(..., help="Dataset folder."),
         _fail("say which episodes to keep: --where EXPRESSION and/or --episodes 0,3,5-9")
     indices = _episode_indices(episodes)
     try:
-        with _disk_full_is_an_error(out):
+        with _disk_full_is_an_error(out, _inputs_unchanged(out)):
             filter_dataset(dataset, out, where, command=_this_command(), episodes=indices)
     except (DatasetError, ValueError, FileExistsError) as e:
         _fail(str(e))
     said = " and ".join(x for x in (f"where {where}" if where else "", f"--episodes {episodes}" if episodes else "")
                         if x)
     console.print(f"wrote the episodes {said} to {out}")
+    _sign_outputs([out], key)
 
 
 @app.command()
@@ -1032,17 +1165,19 @@ def split(dataset: Path = typer.Argument(..., help="Dataset folder."),
           out: Path = typer.Option(..., help="Folder for the two new datasets OUT/train and OUT/valid."),
           valid_fraction: float = typer.Option(0.1, help="Fraction of each (source, skill, operator) group for valid."),
           seed: int = typer.Option(0, help="Seed of the shuffle."),
-          where: Optional[str] = typer.Option(None, help="Only episodes matching this expression.")):
+          where: Optional[str] = typer.Option(None, help="Only episodes matching this expression."),
+          key: Optional[Path] = _key_option()):
     """Split into train and valid datasets, stratified by source, skill and operator."""
     from surrol_data.datasets.merge import split_dataset
     from surrol_data.datasets.reader import DatasetError
 
     try:
-        with _disk_full_is_an_error(out):
+        with _disk_full_is_an_error(out, _split_kept(out)):
             parts = split_dataset(dataset, out, valid_fraction, seed, where=where, command=_this_command())
     except (DatasetError, ValueError, FileExistsError) as e:
         _fail(str(e))
     console.print(f"wrote {parts['train']} and {parts['valid']}")
+    _sign_outputs([parts["train"], parts["valid"]], key)
 
 
 class ExportFormat(str, Enum):
@@ -1054,8 +1189,9 @@ def _cameras(dataset: Path) -> list[str]:
     """The camera names of a dataset, from its info.json alone (the dataset may be one read through a repaired
     view: its own files are not all readable)."""
     from surrol_data.datasets.reader import load_info
+    from surrol_data.datasets.readonly_view import view_of
 
-    return [k.removeprefix("observation.images.") for k, ft in load_info(dataset)["features"].items()
+    return [k.removeprefix("observation.images.") for k, ft in load_info(view_of(dataset) or dataset)["features"].items()
             if ft["dtype"] == "video" and k.startswith("observation.images.")]
 
 
@@ -1074,22 +1210,23 @@ def export(dataset: Path = typer.Argument(..., help="Dataset folder."),
 
     indices = _episode_indices(episodes)
     try:
-        if format is ExportFormat.robomimic:
-            from surrol_data.datasets.export_robomimic import export_robomimic
+        with _disk_full_is_an_error(out, _export_kept(out, dataset)):
+            if format is ExportFormat.robomimic:
+                from surrol_data.datasets.export_robomimic import export_robomimic
 
-            path = export_robomimic(dataset, out, where=where, valid_fraction=valid_fraction, seed=seed,
-                                    overwrite=overwrite, episodes=indices)
-            cameras = _cameras(dataset)
-            console.print(f"wrote {path}" + (f" (camera frames in obs/{cameras[0]}_image)" if cameras else ""))
-        else:
-            from surrol_data.datasets.export_minari import export_minari
+                path = export_robomimic(dataset, out, where=where, valid_fraction=valid_fraction, seed=seed,
+                                        overwrite=overwrite, episodes=indices)
+                cameras = _cameras(dataset)
+                console.print(f"wrote {path}" + (f" (camera frames in obs/{cameras[0]}_image)" if cameras else ""))
+            else:
+                from surrol_data.datasets.export_minari import export_minari
 
-            ds = export_minari(dataset, out, dataset_id=dataset_id, where=where, episodes=indices)
-            console.print(f"wrote Minari dataset {ds.spec.dataset_id!r} ({ds.total_episodes} episodes) under {out}; "
-                          f"load it with MINARI_DATASETS_PATH={out} and minari.load_dataset({ds.spec.dataset_id!r})")
-            if _cameras(dataset):
-                _note("the Minari export holds the state, goals, actions and rewards, not the camera frames; "
-                      "`--format robomimic` exports those too (obs/<camera>_image)")
+                ds = export_minari(dataset, out, dataset_id=dataset_id, where=where, episodes=indices)
+                console.print(f"wrote Minari dataset {ds.spec.dataset_id!r} ({ds.total_episodes} episodes) under {out}; "
+                              f"load it with MINARI_DATASETS_PATH={out} and minari.load_dataset({ds.spec.dataset_id!r})")
+                if _cameras(dataset):
+                    _note("the Minari export holds the state, goals, actions and rewards, not the camera frames; "
+                          "`--format robomimic` exports those too (obs/<camera>_image)")
     except (DatasetError, ValueError, FileExistsError, ImportError) as e:
         _fail(str(e))
 
@@ -1124,7 +1261,7 @@ def upgrade(dataset: Path = typer.Argument(..., help="Dataset folder written by 
     from surrol_data.datasets.upgrade import upgrade_dataset
 
     try:
-        with console.status(f"upgrading {dataset}"), _disk_full_is_an_error(dataset):
+        with console.status(f"upgrading {dataset}"), _disk_full_is_an_error(dataset, _upgrade_kept(dataset)):
             report = upgrade_dataset(dataset, keep_backup=keep_backup)
     except DatasetError as e:
         _fail(str(e))

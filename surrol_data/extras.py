@@ -24,6 +24,7 @@ OPTIONAL = {
     "starlette": ("web", "starlette"),
     "uvicorn": ("web", "uvicorn"),
     "websockets": ("web", "websockets"),
+    "cryptography": ("sign", "cryptography"),
 }
 
 

@@ -41,6 +41,7 @@ if __name__ == "__main__":
         results["validate"] = run("validate", str(root), "--no-lerobot", "--no-reward")
         from surrol_data.datasets.reader import DatasetReader
         results["episodes"] = len(DatasetReader(root))
+        results["seeds"] = [int(x) for x in DatasetReader(root).episodes["seed"]]
     print("RESULTS " + json.dumps(results))
 """
 
@@ -70,8 +71,10 @@ def test_disk_full_is_one_line_and_loses_nothing(tmp_path):
     full, space = lines
     collect = " ".join(full["collect"]["output"].split())
     assert full["collect"]["code"] == 2 and "no space left on the disk" in collect, collect
+    assert f"every episode finished is kept: {full['recorded']} in" in collect, collect
     assert _one_line_error(full["collect"]) and full["recorded"] >= 1, full
     for name in ("info", "repair"):
         assert _one_line_error(full[name]), (name, full[name])
     assert space["repair"]["code"] == 0 and space["validate"]["code"] == 0, space
     assert space["episodes"] == full["recorded"]  # every episode recorded before the disk filled
+    assert space["seeds"] == list(range(full["recorded"]))   # each once (a stopped close had dropped some, doubled others)

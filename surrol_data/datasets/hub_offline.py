@@ -28,12 +28,14 @@ def local_repo_id(root: str | Path) -> str:
     return f"local/{name}"
 
 
-_PATTERN_CHARS = re.compile(r"[][*?{}]")
+# glob characters, and ``$``: a path holding ``$HOME`` has it expanded on the way (to the user's home folder), so
+# lerobot found no local file under a folder literally named so and went to the Hub
+_PATTERN_CHARS = re.compile(r"[][*?{}$]")
 
 
 def lerobot_root(root: str | Path) -> Path:
     """``root`` itself, or, when its absolute path holds a character that Hugging Face ``datasets`` expands in a
-    file pattern (lerobot loads ``meta/episodes/*/*.parquet`` through one), a symbolic link to it from a plain path
+    file pattern (lerobot loads ``meta/episodes/*/*.parquet`` through one) or expands (``$HOME``), a symbolic link to it from a plain path
     in a temporary folder (removed at exit). ``root`` must exist."""
     import atexit
     import shutil

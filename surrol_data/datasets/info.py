@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from surrol_data.datasets.interventions import episode_interventions, operator_interventions
-from surrol_data.datasets.reader import DatasetReader
+from surrol_data.datasets.reader import DatasetError, DatasetReader
 from surrol_data.datasets.schema import SIDECAR_PATH, camera_renderer_of, camera_version_of
 
 GROUP_BY = ("source", "device", "skill", "operator_id")
@@ -110,8 +110,15 @@ def _smoothness(reader: DatasetReader, episodes: list[int]) -> list[float]:
     firsts, starts, counts = np.unique(ep_col, return_index=True, return_counts=True)
     where = {int(e): (int(s), int(n)) for e, s, n in zip(firsts, starts, counts, strict=True)}
     out = []
+    lengths = dict(zip(reader.episodes["episode_index"].astype(int), reader.episodes["length"].astype(int),
+                       strict=True))
     for ep in episodes:
-        start, n = where[int(ep)]
+        start, n = where.get(int(ep), (0, 0))
+        if n != lengths.get(int(ep), n):
+            # the metadata checks do not read frames: frames relabelled or lost are found here, where they are read
+            raise DatasetError(f"{reader.root}: the data files hold {n} frames of episode {ep}, its metadata says "
+                               f"{lengths[int(ep)]}: the frames are damaged. Run `surrol-data validate {reader.root}` "
+                               f"for the full check, `surrol-data repair {reader.root}` to keep its intact episodes")
         path = np.concatenate([tips[start:start + n], next_tips[start + n - 1:start + n]]).astype(np.float64)
         k = steps_to_success(success[start:start + n])
         out.append(log_dimensionless_jerk(path[: k + 1] if k > 0 else path))
@@ -171,6 +178,13 @@ def info_facts(root: str | Path) -> dict:
     return {"summary": summary, "by_skill": by_skill}
 
 
+CHECKED = {
+    "metadata": "metadata and seals (info.json, every parquet footer, provenance and its seals, counts); not the "
+                "frames: run `surrol-data validate` for those",
+    "full": "everything: `surrol-data validate` passed on these very bytes",
+}
+
+
 def render_info(root: str | Path, label: str | Path | None = None, facts: dict | None = None):
     """A rich renderable (tables) of :func:`summarize`; print it with ``rich.console.Console().print``.
     ``facts``: :func:`info_facts` of ``root`` when the caller has them already (remembered by content digest)."""
@@ -198,9 +212,17 @@ def render_info(root: str | Path, label: str | Path | None = None, facts: dict |
         *((("camera renderer", r),) if (r := camera_renderer_of(side, s["features"])) is not None else ()),
     ):
         totals.add_row(label, value)
+    checked = facts.get("checked")
+    if checked is not None:   # what the numbers below rest on (see surrol_data.datasets.info_cache.checked_info)
+        totals.add_row("checked", CHECKED[checked])
+    signer = side.get("signature", {}).get("public_key") if isinstance(side.get("signature"), dict) else None
+    if signer:
+        totals.add_row("signed by", f"Ed25519 key {signer[:16]}… (not verified here: `surrol-data validate "
+                                    "--trust KEY` checks it)")
     if s["has_provenance"]:
         o = s["overall"]
-        totals.add_row("success rate", _fmt(100 * o["success_rate"]) + " %")
+        totals.add_row("success rate", _fmt(100 * o["success_rate"]) + " %"
+                       + (" (as recorded in the episodes' metadata)" if checked == "metadata" else ""))
         totals.add_row("mean steps to success", _fmt(o["mean_steps_to_success"]))
         totals.add_row("mean path length", _fmt(o["mean_path_length_cm"]) + " cm")
 

@@ -68,12 +68,16 @@ def checked_info(root: str | Path, notify: Callable[[str], None] = _stderr) -> t
     require_dataset_folder(root)
     target = ensure_finished(root, notify)   # a killed recording is found before any lookup
     digest = dataset_digest(target)
+    checked = "full" if known_valid(digest) else "metadata"   # what the answer rests on; shown by render_info
     facts = _recall(digest)
     if facts is not None:
-        return target, facts
-    if not known_valid(digest):   # a full check of these bytes passed: the metadata checks are a part of it
+        return target, {**facts, "checked": checked}
+    if checked != "full":   # a full check of these bytes passed: the metadata checks are a part of it
         check_finished(root, target, frames=False)
     # rendered from the JSON round trip, remembered or not, so a recalled answer reads exactly like a fresh one
     text = json.dumps(info_facts(target), default=_plain)
-    _remember(digest, text)
-    return target, json.loads(text)
+    # remembered only under the digest of the bytes the facts were read from: a change while they were read (another
+    # process writing) would otherwise leave an answer for bytes that are not the ones it was drawn from
+    if dataset_digest(target) == digest:
+        _remember(digest, text)
+    return target, {**json.loads(text), "checked": checked}

@@ -15,8 +15,10 @@ Measured by ``benchmarks/dataset_io.py`` (the write speed with the journal on) a
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -40,6 +42,11 @@ def write_entry(root: str | Path, episode_index: int, traj: Trajectory, provenan
     """Atomically write episode ``episode_index`` (its trajectory and full provenance)."""
     path = entry_path(root, episode_index)
     path.parent.mkdir(parents=True, exist_ok=True)
+    return write_entry_at(path, traj, provenance)
+
+
+def write_entry_at(path: Path, traj: Trajectory, provenance: dict) -> Path:
+    """Atomically write one entry at ``path`` (its folder exists)."""
     arrays = {name: np.asarray(getattr(traj, name)) for name in _ARRAYS}
     arrays.update({f"flag.{k}": np.asarray(v) for k, v in traj.flags.items()})
     arrays.update({f"image.{k}": np.asarray(v) for k, v in traj.images.items()})
@@ -47,9 +54,14 @@ def write_entry(root: str | Path, episode_index: int, traj: Trajectory, provenan
         arrays["policy_action"] = np.asarray(traj.policy_action)
     arrays["provenance"] = np.asarray(json.dumps(provenance, sort_keys=True))
     tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as fh:
-        np.savez(fh, **arrays)  # uncompressed: ~1 ms for a state-only episode
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, **arrays)  # uncompressed: ~1 ms for a state-only episode
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):   # a full disk: leave no half entry behind (it would be ignored anyway)
+            os.unlink(tmp)
+        raise
     return path
 
 
@@ -90,5 +102,67 @@ def drop_below(root: str | Path, episodes: int) -> None:
     if folder.is_dir():
         for tmp in folder.glob("*.tmp"):
             tmp.unlink(missing_ok=True)
+        if not entries(root):
+            (folder / RENUMBERED).unlink(missing_ok=True)
         if not any(folder.iterdir()):
             folder.rmdir()
+
+
+# ---------------------------------------------------------------- renumbering (the repair's)
+# A repair that keeps episodes 0..k-1 in place writes every salvaged episode again after them, renumbered k, k+1, ...
+# Its writer journals each one under its new number: were the journal still numbered the old way, an entry written
+# under a new number could replace one not yet replayed (old 60 written as new 50 over old 50...), and a repair
+# stopped halfway (a full disk) would leave one episode under two numbers. So the repair first renumbers the journal
+# itself, as a whole: every salvaged episode under its new number, in RENAMING, then swapped for the journal in
+# two renames; the RENUMBERED marker (the first new number) says that from it on the journal, not the files, holds
+# the dataset's episodes.
+
+RENAMING = JOURNAL_DIR + ".next"
+RENUMBERED = "renumbered_from"
+
+
+def renumbered_from(root: str | Path) -> int | None:
+    """The first episode index from which the journal (renumbered by a repair) supersedes the files; None if not."""
+    try:
+        return int((journal_dir(root) / RENUMBERED).read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def finish_renumbering(root: str | Path) -> None:
+    """Complete or undo a renumbering a kill interrupted (see above): the new journal, once whole (its marker is
+    written last), replaces an old one already moved away; otherwise it is discarded (the old one is intact)."""
+    root = Path(root)
+    staged = root / RENAMING
+    if not staged.exists():
+        return
+    if not journal_dir(root).exists() and (staged / RENUMBERED).exists():
+        os.replace(staged, journal_dir(root))
+    else:
+        shutil.rmtree(staged)
+
+
+def renumber(root: str | Path, items: list[tuple[Path | None, object, dict]], first: int, backup: Path) -> None:
+    """Make the journal hold ``items`` as episodes ``first``, ``first + 1``, ...: each item is (its current entry,
+    or None, and then the trajectory and provenance to write). The old journal is moved into ``backup``."""
+    root = Path(root)
+    staged = root / RENAMING
+    if staged.exists():
+        shutil.rmtree(staged)
+    staged.mkdir()
+    for i, (source, traj, provenance) in enumerate(items):
+        dest = staged / entry_path(root, first + i).name
+        if source is not None:
+            try:
+                os.link(source, dest)   # the same bytes: an entry does not hold its own number
+            except OSError:
+                shutil.copyfile(source, dest)
+        else:
+            write_entry_at(dest, traj, provenance)
+    tmp = staged / (RENUMBERED + ".tmp")
+    tmp.write_text(str(first))
+    os.replace(tmp, staged / RENUMBERED)   # the new journal is whole
+    if journal_dir(root).exists():
+        backup.mkdir(parents=True, exist_ok=True)
+        os.replace(journal_dir(root), backup / JOURNAL_DIR)
+    os.replace(staged, journal_dir(root))

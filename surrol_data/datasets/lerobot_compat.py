@@ -56,6 +56,8 @@ INTERNALS = (
     ("lerobot.datasets.dataset_metadata", "LeRobotDatasetMetadata._close_writer"),
     ("lerobot.datasets.dataset_metadata", "LeRobotDatasetMetadata._save_episode_metadata"),
     ("lerobot.datasets.io_utils", "write_info"),
+    ("lerobot.datasets.utils", "serialize_dict"),
+    ("lerobot.datasets.utils", "DatasetInfo.to_dict"),
     ("lerobot.utils.utils", "flatten_dict"),
     ("lerobot.datasets.compute_stats", "aggregate_stats"),
     ("lerobot.datasets.compute_stats", "compute_episode_stats"),
@@ -200,8 +202,9 @@ def import_in_background() -> None:
         except BaseException:  # noqa: BLE001 - the caller's own import raises it again, where it is handled
             pass
 
-    _background_import = threading.Thread(target=run, name="surrol_data-import-lerobot", daemon=True)
-    _background_import.start()
+    thread = threading.Thread(target=run, name="surrol_data-import-lerobot", daemon=True)
+    thread.start()
+    _background_import = thread   # only a started thread is ever joined
 
 
 def background_import_running() -> bool:
@@ -465,13 +468,32 @@ def write_episode_totals(ds) -> None:
     if not pending:
         return
     from lerobot.datasets.compute_stats import aggregate_stats as _aggregate
-    from lerobot.datasets.io_utils import write_info, write_stats as _write
 
     everything = [meta.stats, *pending] if meta.stats is not None else list(pending)
     meta.stats = everything[0] if len(everything) == 1 else _aggregate(everything)
     pending.clear()
-    write_info(meta.info, meta.root)
-    _write(meta.stats, meta.root)
+    # lerobot's write_info / write_stats open the file for writing in place: a full disk or an I/O error in the
+    # middle would leave half a file. The same bytes are written whole beside it, then renamed over it.
+    from lerobot.datasets.utils import serialize_dict
+
+    _write_json_atomically(meta.info.to_dict(), meta.root / "meta" / "info.json")
+    _write_json_atomically(serialize_dict(meta.stats), meta.root / "meta" / "stats.json")
+
+
+def _write_json_atomically(data, path) -> None:
+    """lerobot's ``write_json`` (indent 4, UTF-8), through a temporary file and ``os.replace``."""
+    import json
+    import os
+
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        with open(tmp, "w", encoding="utf-8") as fh:
+            json.dump(data, fh, indent=4, ensure_ascii=False)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
 
 
 def episode_buffer(frames: dict[str, np.ndarray], T: int, episode_index: int, task: str, fps: int) -> dict:

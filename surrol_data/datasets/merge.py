@@ -139,8 +139,9 @@ def copy_episodes(selection: list[tuple[str | Path, list[int]]], out: str | Path
     from surrol_data.datasets.writer import _write_json_atomic
 
     from surrol_data.datasets.guard import require_valid
+    from surrol_data.datasets.output_path import new_output
 
-    out = Path(out)
+    out = new_output(out)
     if out.exists():
         raise FileExistsError(f"{out} already exists: choose a new output folder")
     _refuse_out_inside(out, [Path(r).resolve() for r, _ in selection])
@@ -245,8 +246,9 @@ def merge_datasets(out: str | Path, inputs: list[str | Path], *, command: str | 
     which keeps the first copy and writes the episodes again instead of aggregating).
     """
     from surrol_data.datasets.guard import require_valid
+    from surrol_data.datasets.output_path import new_output
 
-    out = Path(out)
+    out = new_output(out)
     if not inputs:
         raise ValueError("merge needs at least one input dataset")
     resolved = [Path(r).resolve() for r in inputs]
@@ -315,7 +317,7 @@ def _aggregate(readers: list[DatasetReader], out: Path, shared: dict, *, command
                     copy_trace(reader.root, int(ep), built, offset + int(ep))
                 offset += len(reader)
             side = read_sidecar(readers[0].root)
-            for stale in ("checkpoint", "sessions", "derived_from", "created_at", "seals"):
+            for stale in ("checkpoint", "sessions", "derived_from", "created_at", "seals", "signature"):
                 side.pop(stale, None)
             if all(read_sidecar(r.root).get("seals") for r in readers):
                 side["seals"] = 1  # every episode came with its seals (an unsealed input's episodes have none)
@@ -437,10 +439,12 @@ def split_dataset(src: str | Path, out: str | Path, valid_fraction: float = 0.1,
     """``out/train`` and ``out/valid`` (see :func:`~surrol_data.datasets.split.split_episodes`)."""
     from surrol_data.datasets.split import split_episodes
 
-    out = Path(out)
+    from surrol_data.datasets.guard import require_valid
+    from surrol_data.datasets.output_path import new_output
+
+    out = new_output(out)
     if out.exists():
         raise FileExistsError(f"{out} already exists: choose a new output folder")
-    from surrol_data.datasets.guard import require_valid
 
     src = require_valid(src)
     reader = DatasetReader(src)

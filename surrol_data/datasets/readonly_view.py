@@ -38,6 +38,15 @@ def is_writable(root: str | Path) -> bool:
     return True
 
 
+_VIEWS: dict[Path, Path] = {}   # dataset -> its repaired view, made by this process
+
+
+def view_of(root: str | Path) -> Path | None:
+    """The view :func:`writable_view` made of ``root`` in this process (None if none): what to read for it, e.g. its
+    info.json when the dataset itself has none yet (a recording killed before it created its LeRobot files)."""
+    return _VIEWS.get(Path(root).resolve())
+
+
 def writable_view(root: str | Path) -> Path:
     """A temporary, writable view of ``root`` (see the module doc), named like it; removed at exit."""
     root = Path(root).resolve()
@@ -58,4 +67,5 @@ def writable_view(root: str | Path) -> Path:
                 shutil.copy2(here / name, view / rel / name)
             else:
                 os.symlink(here / name, view / rel / name)
+    _VIEWS[root] = view
     return view

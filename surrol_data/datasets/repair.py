@@ -151,6 +151,8 @@ def killed_recording(root: str | Path) -> list[str]:
         signs.append("its last recording session never ended")
     if interrupted(root):
         signs.append("the consolidation of its files was interrupted")
+    if (root / journal.RENAMING).exists():
+        signs.append("a repair of it was interrupted")
     return signs
 
 
@@ -165,6 +167,7 @@ def repair(root: str | Path) -> RepairReport:
                            "writer has finished or died")
     with DatasetLock(root):
         finished = finish_interrupted(root)   # first: until it is done, a file may be out of its place
+        journal.finish_renumbering(root)      # likewise a journal a stopped repair was renumbering
         _create_pending_dataset(root)
         report, salvage, info = _cut_back(root)
     report.consolidation = finished
@@ -275,6 +278,11 @@ def _cut_back(root: Path):
     kept = 0
     while kept in rows and why_not_intact(kept) is None:
         kept += 1
+    superseded = journal.renumbered_from(root)
+    if superseded is not None:
+        # a stopped repair renumbered the journal: from there on it holds the episodes, the files' copies go
+        kept = min(kept, superseded)
+        known = {ep for ep in known if ep < superseded}
 
     # Everything after the intact prefix: from the journal (exact arrays) or a readable file, else dropped.
     salvage: list[tuple[int, object]] = []
@@ -300,6 +308,12 @@ def _cut_back(root: Path):
                                        "of the shared video file; re-record it"))
         else:
             salvage.append((ep, _from_files(root, info, rows[ep], readable_data)))
+
+    salvage = _recordable(root, info, salvage, report)
+    if salvage and any(ep != kept + i or ep not in entries for i, (ep, _) in enumerate(salvage)):
+        # renumbered before any file is touched: see journal.renumber (the backup folder gets the old journal)
+        journal.renumber(root, [(entries.get(ep), traj, prov) for ep, (traj, prov) in salvage], kept, backup)
+        entries = {}
 
     frames_on_disk = sum(data_counts.values())
     kept_rows = [rows[i] for i in range(kept)]
@@ -362,6 +376,30 @@ def _cut_back(root: Path):
     return report, salvage, info
 
 
+def _recordable(root: Path, info: dict, salvage: list, report: RepairReport) -> list:
+    """The salvaged episodes the writer will take (the checks of its ``record``, made before anything is written:
+    the journal is renumbered for exactly these); the others are dropped, with the writer's reason."""
+    from surrol_data.datasets.schema import normalize_provenance
+    from surrol_data.datasets.writer import DatasetWriter
+
+    if not salvage:
+        return salvage
+    features = {k: v for k, v in info["features"].items() if k not in _DEFAULT_FEATURES}
+    checker = DatasetWriter(root.parent / f".{root.name}.check-{os.getpid()}", features=features, task="check",
+                            env_id="check", task_description="check", handle_signals=False)   # never opened
+    ok = []
+    for ep, (traj, provenance) in salvage:
+        try:
+            checker._frame_arrays(traj)
+            normalize_provenance({k: v for k, v in provenance.items() if k in PROVENANCE_COLUMNS}, traj,
+                                 defaults={"task": "check", "env_id": "check", "command": "", "git_commit": ""})
+        except ValueError as e:
+            report.dropped.append((ep, f"its saved copy cannot be recorded again ({e})"))
+            continue
+        ok.append((ep, (traj, provenance)))
+    return ok
+
+
 def _from_files(root: Path, info: dict, row: dict, readable_data: dict):
     path = readable_data[(int(row["data/chunk_index"]), int(row["data/file_index"]))]
     table = pq.read_table(path)
@@ -394,19 +432,10 @@ def _replay(root: Path, info: dict, salvage: list, report: RepairReport) -> None
                              handle_signals=False, checkpoint_every=10_000, checkpoint_interval_s=None, lazy=False,
                              camera_version=camera_version_of(side, features) or CAMERA_VERSION,
                              camera_renderer=camera_renderer_of(side, features) or DEFAULT_CAMERA_RENDERER)
-    entries = dict(journal.entries(root))
     with recorder:
-        for ep, (traj, provenance) in salvage:
+        for ep, (traj, provenance) in salvage:   # each passed the writer's checks (_recordable)
             provenance = {k: v for k, v in provenance.items() if k in PROVENANCE_COLUMNS}
-            try:
-                new = recorder.record(traj, provenance)
-            except ValueError as e:  # a damaged journal entry or metadata row: dropped, and said why
-                report.dropped.append((ep, f"its saved copy cannot be recorded again ({e})"))
-                if ep in entries and report.backup_dir:
-                    dest = Path(report.backup_dir) / journal.JOURNAL_DIR / entries[ep].name
-                    dest.parent.mkdir(parents=True, exist_ok=True)
-                    shutil.move(str(entries[ep]), str(dest))
-                continue
+            new = recorder.record(traj, provenance)
             renames.append((ep, new))
             report.frames += len(traj)
     if not kept:  # move the freshly written files into the dataset (its own versions were moved aside)

@@ -148,7 +148,9 @@ def _validate(root: Path, check_reward: bool, check_lerobot: bool, check_videos:
     try:
         info = load_info(root)
     except DatasetError as e:
-        return [Problem("format", INFO_PATH, f"{e}")]
+        # a recording killed before it created its LeRobot files has no info.json: that, not the file, is the cause
+        unfinished = _check_unfinished(root) if (root / "meta").is_dir() else []
+        return unfinished or [Problem("format", INFO_PATH, f"{e}")]
     problems += _check_info(info, read_sidecar(root))
     problems += _check_unfinished(root)
     unreadable, meta_files, data_files = _read_files(root, frames)
@@ -369,8 +371,14 @@ def _check_unfinished(root: Path) -> list[Problem]:
     if holder is not None:
         return [Problem("unfinished", str(root), f"is being written right now (pid {holder or '?'}); validate it "
                                                  "once the recording has finished")]
-    return [Problem("unfinished", str(root), f"{why}: a recording was killed; {REPAIR_HINT} (our commands do it "
-                                             "automatically) to keep every finished episode")
+    from surrol_data.datasets.readonly_view import is_writable
+
+    if killed_recording(root) and not is_writable(root):
+        hint = (f"it is on a disk that cannot be written here: copy it to a writable folder and run `surrol-data "
+                "repair` on the copy (our commands read a repaired copy of it meanwhile)")
+    else:
+        hint = f"{REPAIR_HINT} (our commands do it automatically)"
+    return [Problem("unfinished", str(root), f"{why}: a recording was killed; {hint} to keep every finished episode")
             for why in killed_recording(root)]   # files without a footer: the parquet check names each one
 
 

@@ -199,7 +199,9 @@ class DatasetWriter:
                  command: str | None = None, handle_signals: bool = True, fast_save: bool = True,
                  camera_version: int = CAMERA_VERSION, camera_renderer: str = DEFAULT_CAMERA_RENDERER,
                  lazy: bool = True, consolidate: bool = True):
-        self.root = Path(root)
+        from surrol_data.datasets.output_path import new_output
+
+        self.root = new_output(root)   # a link to a folder still to be made: that folder
         # A new state-only dataset is created at the first checkpoint, not at open (see _open_lazily); lazy=False
         # creates it at open, e.g. for an interactive session, whose operator would rather wait before the first
         # episode than after it.
@@ -236,6 +238,11 @@ class DatasetWriter:
             raise FileExistsError(f"{self.root} already exists: add episodes to it with --append, "
                                   "or choose a new folder")
         if self._exists:
+            from surrol_data.datasets.readonly_view import is_writable
+
+            if not is_writable(self.root):   # before the repair an unfinished one needs, which could not be kept
+                raise DatasetError(f"{self.root} cannot be written here (a read-only disk or folder): to add episodes "
+                                   "to it, copy it to a writable folder and append there")
             if (self.root / "meta").is_dir():
                 # A recording killed before it created its LeRobot dataset left no info.json: the repair builds it.
                 self._before_append()
@@ -296,6 +303,10 @@ class DatasetWriter:
         self._files_at_open: set[str] = set()
         self._lock = DatasetLock(self.root)
         self._created = False
+        # A write of this session failed (a full disk, an I/O error): lerobot's open files are in an unknown state,
+        # so nothing more is written through them (see _abandon); the journal holds every episode not yet in closed
+        # files, and the repair every command runs first rebuilds the dataset from it.
+        self._failed = False
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -352,12 +363,19 @@ class DatasetWriter:
         is small) until the first checkpoint creates the LeRobot dataset (:meth:`_create_dataset`) and saves them,
         in order, as an eager open would have: the files are the same."""
         self.root.mkdir(parents=True, exist_ok=False)
-        (self.root / "meta").mkdir()
-        self._lock.acquire()
-        self._exists = True
-        self._created = True
-        self._durable = 0
-        self._start_session(checkpoint=False)
+        try:
+            (self.root / "meta").mkdir()
+            self._lock.acquire()
+            self._exists = True
+            self._created = True
+            self._durable = 0
+            self._start_session(checkpoint=False)
+        except BaseException:   # e.g. a full disk: nothing recorded, so nothing is left to block a retry
+            self._lock.release()
+            self._restore_signal_handlers()
+            self._open = False
+            shutil.rmtree(self.root, ignore_errors=True)
+            raise
 
     def _start_session(self, checkpoint: bool) -> None:
         self._open = True
@@ -408,31 +426,70 @@ class DatasetWriter:
             return
         try:
             with self._hold_signals():
-                if self._ds is None and self._unsaved:
-                    self._create_dataset()
-                if self._ds is not None:
-                    if self._ds.has_pending_frames():
-                        self._ds.clear_episode_buffer()
-                    lerobot_compat.write_episode_totals(self._ds)
-                    self._ds.finalize()
-                self._ds = None
-                self._durable = self._total_episodes_on_disk()
-                journal.drop_below(self.root, self._durable)   # an episode not in the files keeps its entry
-                if self._created and self._durable == 0:
-                    # Nothing was recorded (e.g. the first episode failed): leave no folder to block a retry.
-                    shutil.rmtree(self.root, ignore_errors=True)
+                if self._failed:
+                    self._abandon()
                     return
-                if self.consolidate:
-                    self._consolidate()
-                self._session["ended_at"] = utc_now_iso()
-                self._write_sidecar(checkpoint=True)
-                write_dataset_card(self.root)
+                try:
+                    self._finish()
+                except BaseException:
+                    self._failed = True
+                    self._abandon()
+                    raise
         finally:
             self._ds = None
             self._open = False
             self._unsaved.clear()
             self._lock.release()
             self._restore_signal_handlers()
+
+    def _finish(self) -> None:
+        """close() of a session whose writes all succeeded: the files' footers, then info.json, then the sidecar's
+        checkpoint, and only then the journal entries of the episodes now in closed files go."""
+        if self._ds is None and self._unsaved:
+            self._create_dataset()
+        if self._ds is not None:
+            if self._ds.has_pending_frames():
+                self._ds.clear_episode_buffer()
+            self._ds.finalize()
+            lerobot_compat.write_episode_totals(self._ds)
+            self._durable = self._ds.meta.total_episodes
+        else:
+            self._durable = self._total_episodes_on_disk()
+        self._ds = None
+        if self._created and self._durable == 0:
+            # Nothing was recorded (e.g. the first episode failed): leave no folder to block a retry.
+            if not journal.entries(self.root):
+                shutil.rmtree(self.root, ignore_errors=True)
+            return
+        self._write_sidecar(checkpoint=True)   # what is in the files, before the journal entries go
+        journal.drop_below(self.root, self._durable)   # an episode not in the files keeps its entry
+        if self.consolidate:
+            self._consolidate()
+        self._session["ended_at"] = utc_now_iso()
+        self._write_sidecar(checkpoint=True)
+        write_dataset_card(self.root)
+
+    def _abandon(self) -> None:
+        """End a session whose write failed without writing anything more: lerobot's finalize (and its garbage-
+        collection safety net) would flush buffered episode rows into files a failed write left in an unknown state,
+        and emptying the journal would trust them. So the journal is kept whole and the session is left unended: the
+        dataset is what a killed recording leaves, which every command repairs first (nothing finished is lost)."""
+        ds, self._ds = self._ds, None
+        if ds is None:
+            return
+        writer, meta = getattr(ds, "writer", None), getattr(ds, "meta", None)
+        image_writer = getattr(writer, "image_writer", None)
+        if image_writer is not None:
+            with contextlib.suppress(Exception):
+                image_writer.stop()
+        for obj, flag in ((ds, "_is_finalized"), (writer, "_finalized"), (meta, "_finalized")):
+            if obj is not None:
+                setattr(obj, flag, True)
+
+    @property
+    def failed(self) -> bool:
+        """Whether a write of this session failed (the dataset is then left to the repair, see :meth:`_abandon`)."""
+        return self._failed
 
     def _consolidate(self) -> None:
         """The files this session wrote, one per checkpoint, into as few as lerobot's size limit allows
@@ -563,12 +620,15 @@ class DatasetWriter:
                 self._unsaved.append((episode_data, columns))
                 self._since_checkpoint += 1
                 if len(self._unsaved) >= MAX_UNSAVED and not self._deferring_creation():
-                    self._create_dataset()   # memory stays bounded, whatever checkpoint_every is
+                    with self._stop_on_failure():
+                        self._create_dataset()   # memory stays bounded, whatever checkpoint_every is
             else:
                 try:
-                    self._save(episode_data, columns)
+                    with self._stop_on_failure():
+                        self._save(episode_data, columns)
                 except BaseException:
-                    journal.entry_path(self.root, episode_index).unlink(missing_ok=True)  # not recorded after all
+                    with contextlib.suppress(OSError):   # not recorded after all (a failing disk may keep it)
+                        journal.entry_path(self.root, episode_index).unlink(missing_ok=True)
                     raise
                 self._since_checkpoint += 1
             self._session["episodes"] = self._session.get("episodes", 0) + 1
@@ -591,15 +651,30 @@ class DatasetWriter:
         """Close every open file (finalize) and resume, so a hard kill cannot lose what is recorded so far."""
         if not self._open:
             raise RuntimeError("DatasetRecorder is not open")
-        with self._hold_signals():
+        with self._hold_signals(), self._stop_on_failure():
             if self._ds is None:
                 self._create_dataset()
             self._close_files_and_continue()
 
+    @contextlib.contextmanager
+    def _stop_on_failure(self):
+        """A failure inside the block is a failed write: nothing more is written this session (see _abandon)."""
+        if self._failed:
+            raise RuntimeError(f"{self.root}: an earlier write of this recording failed; nothing more is recorded")
+        try:
+            yield
+        except BaseException:
+            self._failed = True
+            raise
+
     def _close_files_and_continue(self) -> None:
-        lerobot_compat.write_episode_totals(self._ds)
-        if not lerobot_compat.close_files_and_continue(self._ds):
+        # The files' footers first, then info.json's totals: info.json never counts an episode whose file is
+        # unreadable (a full disk at the footer left it so), and the journal is emptied only after both.
+        if lerobot_compat.close_files_and_continue(self._ds):
+            lerobot_compat.write_episode_totals(self._ds)
+        else:
             self._ds.finalize()
+            lerobot_compat.write_episode_totals(self._ds)
             with hub_offline():
                 self._ds = _lerobot_dataset_class().resume(self.repo_id, root=lerobot_root(self.root),
                                                            video_backend=VIDEO_BACKEND)
@@ -690,6 +765,7 @@ class DatasetWriter:
 
     def _write_sidecar(self, checkpoint: bool = False) -> None:
         side = read_sidecar(self.root)
+        side.pop("signature", None)   # it covers the episodes before this session (signing.py): sign again after
         side.update(sidecar_facts(self.repo_id, self.task, self.env_id, self.task_description, self.robot_type))
         if self.dims["cameras"]:
             side["camera_version"] = self.camera_version
@@ -733,6 +809,8 @@ def _holds_no_episode(root: Path) -> bool:
     no readable row of episode metadata or frames. It holds nothing to keep."""
     from surrol_data.datasets.lock import writer_pid
 
+    if root.is_dir() and not any(root.iterdir()):
+        return True   # an empty folder (a recorder that failed at its first write left it)
     if not (root / "meta").is_dir() or writer_pid(root) is not None or journal.entries(root):
         return False
     for sub in (EPISODES_DIR, DATA_DIR):
