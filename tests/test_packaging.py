@@ -88,3 +88,15 @@ def test_the_lerobot_train_extra_brings_what_each_documented_policy_needs():
     locked = {d["name"] for d in ours_locked["optional-dependencies"]["lerobot-train"]}
     assert "lerobot" in locked
     assert any(p["name"] == "diffusers" for p in lock["package"])   # what lerobot[diffusion] brings
+
+
+def test_uv_run_does_not_compile_the_environment_at_every_start():
+    """`uv run` with `compile-bytecode = true` in [tool.uv] recompiles every file of the environment (~15,000,
+    seconds) at every start, printing "Bytecode compiled N files"; a second `uv run` must go straight to the command."""
+    uv = shutil.which("uv")
+    if uv is None:
+        pytest.skip("needs uv")
+    command = [uv, "run", "--locked", "--group", "test", "python", "-c", "pass"]
+    subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=600, check=True)   # any sync first
+    again = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=600, check=True)
+    assert "Bytecode compiled" not in again.stderr, again.stderr
