@@ -32,7 +32,6 @@ finalize the dataset with every finished episode.
 from __future__ import annotations
 
 import json
-import os
 import sys
 import time
 from collections.abc import Sequence
@@ -58,6 +57,7 @@ from surrol_data.datasets.trajectory import TrajectoryBuilder
 from surrol_data.envs import env_id as make_env_id
 from surrol_data.envs.names import dimension_names, is_ecm_action
 from surrol_data.envs.units import ACTION_POSITION_M, ACTION_YAW_RAD, CONTROL_PERIOD_S
+from surrol_data.render.display import has_display
 
 # SurRoL-v2 recorded human NeedlePick demos with a 150-step horizon, 3× the scripted 50: people need the margin.
 HUMAN_HORIZON_FACTOR = 3
@@ -87,10 +87,6 @@ class HapticResult:
     @property
     def success_rate(self) -> float:
         return (self.attempts - self.failures) / self.attempts if self.attempts else float("nan")
-
-
-def has_display() -> bool:
-    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
 def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | Sequence[Device] = "touch",
