@@ -101,3 +101,21 @@ def test_uv_run_does_not_compile_the_environment_at_every_start():
     subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=600, check=True)   # any sync first
     again = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=600, check=True)
     assert "Bytecode compiled" not in again.stderr, again.stderr
+
+
+def test_the_sdist_holds_code_configs_and_docs_only(tmp_path):
+    """The source distribution is small (it carried the demo sets and the study's runs: 34 MB): code, configs and the
+    docs' text, no `datasets/` nor `docs/results/`, under 2 MB."""
+    import tarfile
+
+    uv = shutil.which("uv")
+    if uv is None:
+        pytest.skip("needs uv")
+    subprocess.run([uv, "build", "--sdist", "--out-dir", str(tmp_path)], cwd=REPO, check=True, capture_output=True,
+                   timeout=600)
+    sdist = next(tmp_path.glob("surrol_data-*.tar.gz"))
+    assert sdist.stat().st_size <= 2_000_000, f"{sdist.stat().st_size / 1e6:.1f} MB"
+    with tarfile.open(sdist) as tar:
+        names = {"/".join(n.split("/")[1:]) for n in tar.getnames()}
+    assert {"surrol_data/cli.py", "configs/config.yaml", "pyproject.toml", "README.md", "docs/index.md"} <= names
+    assert not any(n.startswith(("datasets/", "docs/results/")) for n in names)
