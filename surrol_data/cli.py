@@ -907,6 +907,10 @@ def validate(dataset: Path = typer.Argument(..., help="Dataset folder."),
         console.print(f"[bold red]✗[/] {problem}", markup=True, highlight=False)
     if problems:
         console.print(f"{dataset}: {len(problems)} problem(s)")
+        from surrol_data.datasets.guard import adopt_hint, rewritten_by_lerobot
+
+        if rewritten_by_lerobot(dataset):
+            console.print(adopt_hint(dataset), highlight=False, markup=False)
         raise typer.Exit(code=1)
     from surrol_data.datasets.validated_cache import dataset_digest, remember_valid
 
@@ -932,7 +936,8 @@ def repair(dataset: Path = typer.Argument(..., help="Dataset folder left by a ki
 @app.command()
 def adopt(dataset: Path = typer.Argument(..., help="A dataset rewritten by lerobot's own tools (aggregate_datasets, "
                                                    "lerobot-edit-dataset)."),
-          original: Path = typer.Option(..., "--from", help="The surrol_data dataset it was made from.")):
+          original: list[Path] = typer.Option(..., "--from", help="The surrol_data dataset it was made from; "
+                                              "repeat for an aggregate of several (--from A --from B).")):
     """Restore provenance, seals, device traces, sidecar and card of a dataset lerobot's tools rewrote, matching
     each episode to the original's by the content hash of its frames."""
     from surrol_data.datasets.adopt import adopt as adopt_dataset
