@@ -460,6 +460,7 @@ def info(dataset: Path = typer.Argument(..., help="Dataset folder.")):
 @app.command("eval")
 def evaluate_cmd(task: str = typer.Option(..., help="Task name, e.g. NeedlePick."),
                  policy: str = typer.Option("oracle", help="'oracle', 'lerobot:DIR' (a policy trained by lerobot-train), "
+                                                           "'robomimic:CKPT' (a robomimic checkpoint .pth), "
                                                            "the path of a BC checkpoint (.pt), or a run or sweep "
                                                            "folder: every policy.pt under it."),
                  num_episodes: Optional[int] = typer.Option(None, min=1, help="Episodes to run (default 20)."),
