@@ -28,11 +28,15 @@ class RobomimicPolicy:
         if not path.is_file():
             raise FileNotFoundError(f"{path} is not a robomimic checkpoint file (robomimic's train writes "
                                     "<output_dir>/<name>/<time>/models/model_epoch_N.pth)")
+        from surrol_data.extras import MissingExtra, require
+
         try:
-            import robomimic.utils.file_utils as file_utils
-            import torch
-        except ImportError as e:
-            raise ValueError(f"robomimic:CKPT needs robomimic installed (`pip install robomimic`): {e}") from None
+            require("robomimic")
+        except MissingExtra as e:
+            raise ValueError(f"robomimic:CKPT: {e}") from None
+        import robomimic.utils.file_utils as file_utils
+        import torch
+
         self.path = path
         self.policy, checkpoint_dict = file_utils.policy_from_checkpoint(ckpt_path=str(path),
                                                                          device=torch.device("cpu"), verbose=False)
