@@ -932,6 +932,10 @@ def repair(dataset: Path = typer.Argument(..., help="Dataset folder left by a ki
         _fail(str(e))
     for line in report.lines():
         console.print(line, highlight=False)
+    from surrol_data.datasets.guard import adopt_hint, rewritten_by_lerobot
+
+    if rewritten_by_lerobot(dataset):   # not damaged: what it lacks, adopt restores
+        console.print(adopt_hint(dataset), highlight=False, markup=False)
 
 
 @app.command()

@@ -131,3 +131,5 @@ def test_info_and_validate_of_a_lerobot_edit_point_to_adopt(base, tmp_path):
         assert run.exit_code != 0
         assert f"surrol-data adopt {edited} --from ORIGINAL" in said and "lerobot-edit-dataset" in said, said
         assert "surrol-data repair" not in said
+    run = CliRunner().invoke(app, ["repair", str(edited)], env={"COLUMNS": "200"})   # it has nothing to repair
+    assert f"surrol-data adopt {edited} --from ORIGINAL" in " ".join(run.output.split())
