@@ -454,6 +454,11 @@ def gui(out: Path = typer.Option(Path("gui_sessions"), help="Folder for the sess
         require("panda3d")
     except MissingExtra as e:
         _fail(f"the GUI: {e}")
+    from surrol_data.render.display import no_window_here
+
+    refusal = no_window_here(offscreen, runs_alone=autoplay is not None)   # said before the slow imports
+    if refusal is not None:
+        _fail(refusal)
     from surrol_data.collect.haptic_source import SKILLS
     from surrol_data.envs import TASKS
     from surrol_data.gui.app import DEVICES
@@ -553,6 +558,7 @@ def info(dataset: Path = typer.Argument(..., help="Dataset folder.")):
 @app.command("eval")
 def evaluate_cmd(task: str = typer.Option(..., help="Task name, e.g. NeedlePick."),
                  policy: str = typer.Option("oracle", help="'oracle', 'lerobot:DIR' (a policy trained by lerobot-train), "
+                                                           "'robomimic:CKPT' (a robomimic checkpoint .pth), "
                                                            "the path of a BC checkpoint (.pt), or a run or sweep "
                                                            "folder: every policy.pt under it."),
                  num_episodes: Optional[int] = typer.Option(None, min=1, help="Episodes to run (default 20)."),
@@ -828,7 +834,7 @@ def train(ctx: typer.Context):
 
 
 @app.command()
-def view(dataset: Path = typer.Argument(..., help="Dataset folder."),
+def view(dataset: Path = typer.Argument(..., help="Dataset folder, or a Rerun recording (.rrd) to serve with --web."),
          out: Optional[Path] = typer.Option(None, help="Rerun recording to write (.rrd)."),
          episodes: str = typer.Option("0", help="Episode indices to show side by side, e.g. 0,3,5-9."),
          web: bool = typer.Option(False, help="Serve the recording in Rerun's web viewer (until Ctrl-C)."),
@@ -845,6 +851,8 @@ def view(dataset: Path = typer.Argument(..., help="Dataset folder."),
 
     from surrol_data.datasets.guard import require_valid
 
+    if dataset.suffix == ".rrd" and not web:
+        _fail(f"{dataset} is a Rerun recording already: add --web to serve it to a browser")
     if out is None and not web:
         _fail("say where the recording goes: --out FILE.rrd, and/or --web to serve it in Rerun's web viewer")
     if web:
@@ -854,6 +862,11 @@ def view(dataset: Path = typer.Argument(..., help="Dataset folder."),
             _fail(f"--web-port {web_port} is taken (another program listens there); choose another, or leave "
                   "--web-port out to use a free one")
         web_port = web_port or free_port()
+    if dataset.suffix == ".rrd":   # a recording made before (demo, report, view --out): served as it is
+        if not dataset.is_file():
+            _fail(f"{dataset} does not exist")
+        _serve_web(None, None, web_port, open_browser, recording=dataset)
+        return
     wanted = _episode_indices(episodes)
     try:
         require_valid(dataset, _note)
@@ -881,16 +894,18 @@ def view(dataset: Path = typer.Argument(..., help="Dataset folder."),
 
         with _working(f"writing {out} ..."):
             written = save_rrd(out, items, rcm_positions=rcms, scene=scene)
-        from surrol_data.viz.open_command import rerun_open_command
+        from surrol_data.viz.open_command import recording_view_command
 
-        console.print(f"wrote {written}; open it with: {rerun_open_command(out)}", highlight=False, markup=False,
+        console.print(f"wrote {written}; open it with: {recording_view_command(out)}", highlight=False, markup=False,
                       soft_wrap=True)  # no line break inside the command
     if web:
         _serve_web(items, rcms, web_port, open_browser, scene)
 
 
-def _serve_web(items, rcms, web_port: int, open_browser: bool, scene: bool = True) -> None:
-    """Serve the episodes from this process: a gRPC server holds the recording, the web viewer reads it.
+def _serve_web(items, rcms, web_port: int, open_browser: bool, scene: bool = True,
+               recording: Optional[Path] = None) -> None:
+    """Serve the episodes (or the ``recording``, an .rrd file) from this process: a gRPC server holds the recording,
+    the web viewer reads it.
 
     Both listen on ports free a moment before (not Rerun's fixed 9876, where another viewer's server would hand
     this one its data); the URL is printed only once the data is in the server and the viewer's page answers."""
@@ -907,7 +922,10 @@ def _serve_web(items, rcms, web_port: int, open_browser: bool, scene: bool = Tru
     # The viewer's port is taken first (the data can take seconds per episode to replay); the browser opens and
     # the URL is printed once the data is in the server.
     rr.serve_web_viewer(web_port=web_port, open_browser=False, connect_to=url)
-    log_trajectories(rec, items, rcm_positions=rcms, scene=scene)
+    if recording is not None:
+        rec.log_file_from_path(recording)
+    else:
+        log_trajectories(rec, items, rcm_positions=rcms, scene=scene)
     rec.flush()
     if not wait_for_http(web_port):
         _fail(f"Rerun's web viewer did not answer on port {web_port}; try another --web-port")
@@ -995,6 +1013,10 @@ def validate(dataset: Path = typer.Argument(..., help="Dataset folder."),
         console.print(f"[bold red]✗[/] {problem}", markup=True, highlight=False)
     if problems:
         console.print(f"{dataset}: {len(problems)} problem(s)")
+        from surrol_data.datasets.guard import adopt_hint, rewritten_by_lerobot
+
+        if rewritten_by_lerobot(dataset):
+            console.print(adopt_hint(dataset), highlight=False, markup=False)
         raise typer.Exit(code=1)
     from surrol_data.datasets.validated_cache import dataset_digest, remember_valid
 
@@ -1085,12 +1107,17 @@ def repair(dataset: Path = typer.Argument(..., help="Dataset folder left by a ki
         _fail(str(e))
     for line in report.lines():
         console.print(line, highlight=False)
+    from surrol_data.datasets.guard import adopt_hint, rewritten_by_lerobot
+
+    if rewritten_by_lerobot(dataset):   # not damaged: what it lacks, adopt restores
+        console.print(adopt_hint(dataset), highlight=False, markup=False)
 
 
 @app.command()
 def adopt(dataset: Path = typer.Argument(..., help="A dataset rewritten by lerobot's own tools (aggregate_datasets, "
                                                    "lerobot-edit-dataset)."),
-          original: Path = typer.Option(..., "--from", help="The surrol_data dataset it was made from.")):
+          original: list[Path] = typer.Option(..., "--from", help="The surrol_data dataset it was made from; "
+                                              "repeat for an aggregate of several (--from A --from B).")):
     """Restore provenance, seals, device traces, sidecar and card of a dataset lerobot's tools rewrote, matching
     each episode to the original's by the content hash of its frames."""
     from surrol_data.datasets.adopt import adopt as adopt_dataset

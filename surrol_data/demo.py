@@ -1,12 +1,13 @@
 """The main job, end to end on embedded defaults: script demos → LeRobot dataset → BC → evaluation → report.
 
-Everything it makes lands in one folder: the dataset (with its card), the BC checkpoint, a Rerun
-recording of a demo beside a BC rollout, and ``report.md`` with a table and a plot.
+Everything it makes lands in one folder (by default a new ``outputs/demo-<date>-<time>`` under the folder it runs
+in, which the repository's .gitignore leaves out): the dataset (with its card), the BC checkpoint, a Rerun
+recording of a demo beside a BC rollout, and ``report.md`` with a table and a plot. It ends by saying where each
+is and which commands to try next, in the form that runs in the user's shell (``uv run ...`` under uv).
 """
 
 from __future__ import annotations
 
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,7 +33,7 @@ class DemoOutputs:
 def run_demo(out: str | Path | None = None, episodes: int = DEMO_EPISODES, eval_episodes: int = EVAL_EPISODES,
              seed: int = 0, bc_epochs: int = 20, console: Console | None = None) -> DemoOutputs:
     console = console or Console()
-    out = Path(out) if out else Path(tempfile.mkdtemp(prefix="surrol-data-demo-"))
+    out = Path(out) if out else default_out()
     out.mkdir(parents=True, exist_ok=True)
     dataset = out / "dataset"
     if dataset.exists():
@@ -86,11 +87,33 @@ def run_demo(out: str | Path | None = None, episodes: int = DEMO_EPISODES, eval_
     for name, path in (("dataset", dataset), ("BC policy", policy_path), ("report", report),
                        ("Rerun recording", recording)):
         console.print(f"  {name:<16} {path}")
-    from surrol_data.viz.open_command import rerun_open_command
-
-    console.print(f"  view the recording with: {rerun_open_command(recording)}", highlight=False,
-                  markup=False, soft_wrap=True)  # no line break inside the command
+    console.print("\n[bold]next[/]")
+    for line in next_steps(dataset, recording):
+        console.print(f"  {line}", highlight=False, markup=False, soft_wrap=True)  # no line break inside a command
     return DemoOutputs(out, dataset, policy_path, report, recording, summaries)
+
+
+def default_out() -> Path:
+    """A new folder for one demo's outputs: ``outputs/demo-<date>-<time>`` (``-2``, ``-3``, ... within a second)."""
+    stem = Path("outputs") / time.strftime("demo-%Y%m%d-%H%M%S")
+    out, n = stem, 1
+    while out.exists():
+        n += 1
+        out = stem.with_name(f"{stem.name}-{n}")
+    return out
+
+
+def next_steps(dataset: Path, recording: Path) -> list[str]:
+    """What to try after the demo, each with its command as it runs in the user's shell."""
+    from surrol_data.viz.open_command import as_run_here, recording_view_command
+
+    cli = as_run_here("surrol-data", "surrol_data.cli")
+    return [f"watch a demo beside a BC rollout:  {recording_view_command(recording)}",
+            f"look into the dataset:             {cli} info {dataset}",
+            f"record 100 demos of your own:      {cli} collect --source script --task {DEMO_TASK} "
+            f"--num-episodes 100 --out datasets/{DEMO_TASK}_script",
+            f"train the paper's DDPG+BC on them: {cli} train algo=ddpgbc task={DEMO_TASK} demos=script seed=0",
+            f"every command:                     {cli} --help"]
 
 
 def _demo_summary(demos) -> dict:

@@ -17,6 +17,7 @@ OPTIONAL = {
     "hid": ("devices", "hidapi"),
     "minari": ("export", "minari"),
     "h5py": ("export", "h5py"),
+    "robomimic": ("export", "robomimic"),
     "panda3d": ("render", "panda3d"),
     "tensorboard": ("tensorboard", "tensorboard"),
     "hydra_plugins.hydra_submitit_launcher": ("cluster", "hydra-submitit-launcher"),

@@ -70,8 +70,18 @@ def to_train_config(cfg: DictConfig) -> TrainConfig:
         resume=bool(cfg.resume),
         overwrite=bool(cfg.get("overwrite", False)),
         progress=bool(cfg.progress),
-        tensorboard=bool(cfg.tensorboard),
+        tensorboard=tensorboard_wanted(cfg.get("tensorboard", "auto")),
     )
+
+
+def tensorboard_wanted(setting) -> bool:
+    """``tensorboard=auto`` (the default): TensorBoard logs where the ``tensorboard`` extra is installed, none on the
+    core install; ``true`` asks for them (the run stops before it starts, naming the extra, where it is missing)."""
+    if str(setting).lower() == "auto":
+        import importlib.util
+
+        return importlib.util.find_spec("tensorboard") is not None
+    return bool(setting)
 
 
 SWEEP_REPORT_VAR = "SURROL_DATA_SWEEP_REPORT"
@@ -123,6 +133,9 @@ def _run(cfg: DictConfig) -> float:
     run_dir = str(cfg.get("run_dir", ""))
     try:
         train_cfg = to_train_config(cfg)
+        if str(cfg.get("tensorboard")).lower() == "auto" and not train_cfg.tensorboard:
+            print("note: no TensorBoard logs (the tensorboard extra is not installed: `uv sync --extra tensorboard` "
+                  "or `pip install 'surrol-data[tensorboard]'`); metrics.csv holds every epoch", file=sys.stderr)
         rows = train(train_cfg)
     except (FileNotFoundError, FileExistsError, ValueError, DatasetError, MissingExtra) as e:
         # bad input: say what and how to fix, no traceback; in a sweep the other jobs still run
@@ -177,36 +190,55 @@ def _from_interrupt(e: BaseException) -> bool:
     return False
 
 
+# Which signal stopped the run (set by the handlers below): the exit status and the message name it.
+_stopped_by: list[int] = []
+
+
 @contextlib.contextmanager
 def _quiet_workers_after_ctrl_c():
     """Ctrl-C reaches the env worker processes too, and gymnasium relays each one's KeyboardInterrupt traceback
-    as a warning while the run shuts down; after a Ctrl-C those are silenced (the resume message says it all)."""
+    as a warning while the run shuts down; after a Ctrl-C those are silenced (the resume message says it all).
+    SIGTERM (``kill``, ``timeout``, a job scheduler) stops the run the same way: the finished epochs are
+    checkpointed already, the env workers are closed rather than orphaned (no tracebacks from them, no leaked
+    semaphores), and the same resume message ends it."""
     import gymnasium.logger
 
-    if threading.current_thread() is not threading.main_thread() or \
-            signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
-        yield  # signals go to the main thread only; a caller's own SIGINT handler is left alone
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signals go to the main thread only
         return
     level = gymnasium.logger.min_level
+    # Python's own SIGINT handler and the default SIGTERM action are replaced; a caller's own handler (submitit's,
+    # which requeues a SLURM job) or an ignored signal (SIGINT in a background job) is left alone.
+    ours = {signal.SIGINT: signal.default_int_handler, signal.SIGTERM: signal.SIG_DFL}
+    ours = {signum: default for signum, default in ours.items() if signal.getsignal(signum) is default}
 
-    def on_ctrl_c(signum, frame):
+    def on_stop(signum, frame):
         gymnasium.logger.min_level = gymnasium.logger.ERROR + 1
-        raise KeyboardInterrupt
+        if _stopped_by:
+            return   # a second signal while unwinding from the first is not raised again
+        _stopped_by.append(signum)
+        raise KeyboardInterrupt   # the run's clean-up ends the env workers (algos.train)
 
-    signal.signal(signal.SIGINT, on_ctrl_c)
+    _stopped_by.clear()
+    for signum in ours:
+        signal.signal(signum, on_stop)
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+        for signum, default in ours.items():
+            signal.signal(signum, default)
         gymnasium.logger.min_level = level
 
 
 def resume_command(args: list[str]) -> str:
-    """The command that continues an interrupted ``surrol-data train ARGS``: the same overrides plus resume=true."""
+    """The command that continues an interrupted ``surrol-data train ARGS``: the same overrides plus resume=true,
+    in the form that runs in the user's shell (``uv run surrol-data ...`` under uv)."""
     import shlex
 
+    from surrol_data.viz.open_command import as_run_here
+
     kept = [a for a in args if a.split("=", 1)[0].lstrip("+") not in ("resume", "overwrite")]
-    return shlex.join(["surrol-data", "train", *kept, "resume=true"])
+    return f"{as_run_here('surrol-data', 'surrol_data.cli')} {shlex.join(['train', *kept, 'resume=true'])}"
 
 
 def _print_sweep_report(path: Path, expected: list[str], cluster: bool) -> int:
@@ -215,6 +247,7 @@ def _print_sweep_report(path: Path, expected: list[str], cluster: bool) -> int:
     out of time, cancelled) is a failed row too; if none reported, Hydra's own error (a bad override, ...) says it."""
     from rich.console import Console
     from rich.table import Table
+    from rich.text import Text
 
     rows = [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.exists() else []
     if not rows:
@@ -230,7 +263,8 @@ def _print_sweep_report(path: Path, expected: list[str], cluster: bool) -> int:
         table.add_column(col, overflow="fold")
     for r in rows:
         status = "[green]ok[/]" if r["status"] == "ok" else "[bold red]failed[/]"
-        table.add_row(r["job"], status, r["run_dir"], r["detail"])
+        # as text, not markup: an install hint keeps its `[tensorboard]`, an override its brackets
+        table.add_row(Text(r["job"]), status, Text(r["run_dir"]), Text(r["detail"]))
     Console(stderr=True).print(table)
     return sum(r["status"] != "ok" for r in rows)
 
@@ -282,9 +316,10 @@ def main(argv: list[str] | None = None) -> None:
         if not _from_interrupt(e):
             raise
         # every finished epoch is checkpointed: say how to go on, not where Python was
-        print(f"interrupted; the finished epochs are saved. Resume with: {resume_command(args)}",
-              file=sys.stderr)
-        raise SystemExit(130) from None
+        signum = _stopped_by[0] if _stopped_by else signal.SIGINT
+        how = "interrupted" if signum == signal.SIGINT else f"stopped by {signal.Signals(signum).name}"
+        print(f"{how}; the finished epochs are saved. Resume with: {resume_command(args)}", file=sys.stderr)
+        raise SystemExit(128 + signum) from None
 
 
 def _main(args: list[str], argv: list[str] | None) -> None:

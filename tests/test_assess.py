@@ -73,3 +73,23 @@ def test_assess_and_report_commands(mixed_dataset, tmp_path):
     assert missing.exit_code == 2 and "does not exist" in " ".join(missing.output.split())   # rich wraps lines
     bad = runner.invoke(app, ["report", str(tmp_path), "--out", str(tmp_path / "r"), "--epochs", "fifty"])
     assert bad.exit_code == 2 and "--epochs takes whole numbers" in " ".join(bad.output.split())
+
+
+def test_info_and_assess_give_one_ldlj(mixed_dataset):
+    """`info` and `assess` printed two LDLJ values for one dataset (info from the tip path, assess from the device
+    trace): both measure an episode's smoothness one way, on its device trace where it has one."""
+    import numpy as np
+
+    from surrol_data.datasets.info import _smoothness, skill_breakdown
+    from surrol_data.datasets.reader import DatasetReader
+    from surrol_data.evaluation.assess import score_episodes
+
+    reader = DatasetReader(mixed_dataset)
+    scored = score_episodes(reader)
+    ok = scored[scored["success"]]
+    assert set(ok["smoothness_source"]) == {"device", "tip"}   # haptic episodes have traces, scripted ones not
+    np.testing.assert_allclose(_smoothness(reader, [int(e) for e in ok["episode_index"]]),
+                               ok["log_dimensionless_jerk"].to_numpy(), rtol=1e-9)
+    info_groups = {(g["source"], g["skill"]): g["mean_ldlj"] for g in skill_breakdown(mixed_dataset)}
+    for (source, skill), rows in ok.groupby(["source", "skill"]):
+        assert info_groups[(source, skill)] == pytest.approx(rows["log_dimensionless_jerk"].mean())

@@ -42,6 +42,10 @@ def test_docs_site_builds_strict(tmp_path):
         assert (tmp_path / "site" / f"{page}.html").is_file(), page
     api = (tmp_path / "site" / "api.html").read_text()
     assert "DatasetReader" in api and "run_study" in api, "the API reference was not generated from the docstrings"
+    # the docstrings' Sphinx roles are links (docs/sphinx_roles.py), not raw ":meth:`...`" text
+    assert not re.search(r":(meth|func|class|mod|attr|data):`", api)
+    assert 'class="autorefs autorefs-internal"' in api
+    assert (tmp_path / "site" / "quickstart.html").is_file()   # the site has its own quick start
 
 
 def _anchors(markdown: Path) -> set[str]:

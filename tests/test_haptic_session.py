@@ -141,6 +141,45 @@ def test_cli_haptic_errors_are_clear(tmp_path):
     assert r.exit_code == 2 and "not a number" in r.output
 
 
+def _no_env(*args, **kwargs):
+    raise AssertionError("the env was made before the device was found")
+
+
+def test_a_touch_that_is_not_there_is_said_before_the_env_starts_and_no_folder_is_claimed(tmp_path, monkeypatch):
+    """No OpenHaptics on the machine: one error naming what to install, before any env or dataset (the start-up
+    took 22 s before), and no "episodes are saved in <a folder that does not exist>"."""
+    import ctypes.util
+
+    monkeypatch.delenv("SURROL_LIBHD", raising=False)
+    if ctypes.util.find_library("HD"):
+        pytest.skip("this machine has a libHD: the missing-SDK path cannot be taken here")
+    monkeypatch.setattr("surrol_data.collect.haptic_source.make_env", _no_env)
+    out = tmp_path / "touch_try"
+    r = CliRunner().invoke(app, ["collect", "--source", "haptic", "--device", "touch", "--task", "NeedlePick",
+                                 "--num-episodes", "1", "--out", str(out)])
+    said = " ".join(r.output.split())
+    assert r.exit_code == 2, said
+    assert "device: cannot load libHD" in said and "OpenHaptics" in said and "SURROL_LIBHD" in said
+    assert "saved in" not in said and not out.exists()
+
+
+def test_an_unplugged_touch_is_found_before_the_env_starts(tmp_path, touch_standin, monkeypatch):
+    lib, _, _ = touch_standin   # its script names only the default device: a stylus named Right is not plugged in
+    monkeypatch.setattr("surrol_data.collect.haptic_source.make_env", _no_env)
+    with pytest.raises(DeviceError, match="cannot initialise Touch device Right.*plugged in"):
+        collect_haptic("NeedlePick", 1, tmp_path / "x", device="touch", sides=["right"], library=lib, progress=False)
+    assert not (tmp_path / "x").exists()
+
+
+def test_a_device_lost_before_any_episode_claims_no_dataset(tmp_path, touch_standin, monkeypatch):
+    lib, frames, _ = touch_standin
+    monkeypatch.setenv("LIBHD_STANDIN_UNPLUG_AFTER", "4")   # pulled out during the first attempt
+    out = tmp_path / "ds"
+    with pytest.raises(DeviceError, match=r"stopped answering.*nothing was recorded") as caught:
+        collect_haptic("NeedlePick", 1, out, device="touch", library=lib, realtime=False, progress=False)
+    assert "saved in" not in str(caught.value) and not out.exists()
+
+
 @pytest.mark.slow
 def test_sigkill_loses_at_most_the_episode_in_progress(tmp_path):
     out = tmp_path / "killed"

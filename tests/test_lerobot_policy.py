@@ -168,6 +168,42 @@ def test_lerobot_eval_of_a_camera_policy_without_the_camera_size_takes_the_polic
     assert SurrolEnv(task="NeedlePick").camera_width == 0   # a policy without the image (or none there): no camera
 
 
+def test_a_camera_size_other_than_the_policys_is_refused(tmp_path, monkeypatch):
+    import sys
+
+    from surrol_data.evaluation.lerobot_env import SurrolEnv
+
+    pretrained = _save_act(tmp_path, camera=(24, 32)) / "checkpoints" / "last" / "pretrained_model"
+    monkeypatch.setattr(sys, "argv", ["lerobot-eval", "--env.type=surrol", f"--policy.path={pretrained}"])
+    with pytest.raises(ValueError, match=r"64x48 differ from the 32x24 endoscope images the policy was trained on"):
+        SurrolEnv(task="NeedlePick", camera_width=64, camera_height=48)
+    assert SurrolEnv(task="NeedlePick", camera_width=32, camera_height=24).camera_width == 32   # the same: fine
+
+
+def test_lerobot_eval_finds_the_surrol_env_with_no_flag_and_evaluates_an_act_policy(act_dir, tmp_path):
+    """The `lerobot_env_surrol` distribution (a workspace member, installed by `uv sync`) is what LeRobot's
+    register_third_party_plugins imports: `lerobot-eval --env.type=surrol --policy.path=...` in a fresh process,
+    without --env.discover_packages_path, evaluates the ACT policy."""
+    import importlib.metadata
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    assert importlib.metadata.distribution("lerobot_env_surrol").metadata["Name"] == "lerobot_env_surrol"
+    out = tmp_path / "eval"
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "HF_LEROBOT_HOME": str(tmp_path / "home"), "OMP_NUM_THREADS": "1"}
+    run = subprocess.run([str(Path(sys.executable).parent / "lerobot-eval"), "--env.type=surrol",
+                          "--env.task=NeedlePick", "--env.episode_length=3",
+                          f"--policy.path={act_dir / 'checkpoints' / 'last' / 'pretrained_model'}",
+                          "--policy.device=cpu", "--eval.n_episodes=1", "--eval.batch_size=1", f"--output_dir={out}"],
+                         capture_output=True, text=True, env=env, timeout=600)
+    assert run.returncode == 0, run.stderr[-4000:]
+    overall = json.loads((out / "eval_info.json").read_text())["overall"]
+    assert overall["n_episodes"] == 1
+
+
 def test_the_documented_act_command_plans_chunks_that_fit_the_data():
     """docs/training.md's lerobot-train command: ACT's chunks (default 100 steps, made for 50 Hz) must fit data at
     5 frames/s whose episodes last at most 50 steps: at most 2 s of actions per chunk, replanned within it."""

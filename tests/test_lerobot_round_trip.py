@@ -92,3 +92,44 @@ def test_card_size_category_counts_frames(tmp_path):
         rec.record(corruptions._trajectory(0, 1200, False), {"source": "script", "device": "none",
                                                              "skill": "scripted", "seed": 0})
     assert DatasetCard.load(root / "README.md").data.size_categories == ["1K<n<10K"]  # 1 episode, 1200 frames
+
+
+def test_an_aggregate_of_two_of_our_datasets_is_adopted_from_both(base, tmp_path):
+    """lerobot's aggregate_datasets of two of our datasets: `adopt AGG --from A --from B` finds each episode in the
+    original that holds its frames."""
+    from lerobot.datasets.aggregate import aggregate_datasets
+
+    from surrol_data.datasets.merge import split_dataset
+
+    split_dataset(base, tmp_path / "parts", 0.5, 0, command="test")
+    a, b = tmp_path / "parts" / "train", tmp_path / "parts" / "valid"
+    with hub_offline():
+        aggregate_datasets([local_repo_id(a), local_repo_id(b)], "local/agg2", roots=[a, b], aggr_root=tmp_path / "agg")
+    agg = tmp_path / "agg"
+    run = CliRunner().invoke(app, ["adopt", str(agg), "--from", str(a), "--from", str(b)])
+    said = " ".join(run.output.split())
+    assert run.exit_code == 0, run.output
+    assert "adopted 4 episodes" in said and "from 2 originals" in said
+    assert _cheap(agg) == []
+    seeds = list(DatasetReader(a).episodes["seed"]) + list(DatasetReader(b).episodes["seed"])
+    assert list(DatasetReader(agg).episodes["seed"]) == seeds and sorted(seeds) == [0, 1, 2, 3]
+
+
+def test_info_and_validate_of_a_lerobot_edit_point_to_adopt(base, tmp_path):
+    """A dataset edited by lerobot-edit-dataset is not damaged (and `repair` has nothing to do): `info` and
+    `validate` say to adopt it."""
+    from lerobot.datasets.dataset_tools import delete_episodes
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    with hub_offline():
+        source = LeRobotDataset(local_repo_id(base), root=base, video_backend="pyav")
+        delete_episodes(source, [0], output_dir=tmp_path / "edited", repo_id="local/edited")
+    edited = tmp_path / "edited"
+    for command in (["info", str(edited)], ["validate", str(edited), "--no-lerobot", "--no-reward"]):
+        run = CliRunner().invoke(app, command, env={"COLUMNS": "200"})
+        said = " ".join(run.output.split())
+        assert run.exit_code != 0
+        assert f"surrol-data adopt {edited} --from ORIGINAL" in said and "lerobot-edit-dataset" in said, said
+        assert "surrol-data repair" not in said
+    run = CliRunner().invoke(app, ["repair", str(edited)], env={"COLUMNS": "200"})   # it has nothing to repair
+    assert f"surrol-data adopt {edited} --from ORIGINAL" in " ".join(run.output.split())

@@ -63,7 +63,7 @@ def test_act_trained_by_lerobot_train_runs_in_surrol_eval_and_lerobot_eval(tmp_p
     assert all(e["path_length_cm"] > 0 for e in result["episodes"])  # the policy moved the tool
 
     lerobot_eval = tmp_path / "lerobot_eval"
-    _run([BIN / "lerobot-eval", "--env.discover_packages_path=surrol_data.evaluation.lerobot_env",
+    _run([BIN / "lerobot-eval",   # no --env.discover_packages_path: the lerobot_env_surrol plugin registers it
           "--env.type=surrol", "--env.task=NeedlePick", "--env.episode_length=6", f"--policy.path={model}",
           "--policy.device=cpu", "--eval.n_episodes=1", "--eval.batch_size=1", f"--output_dir={lerobot_eval}"], env)
     overall = json.loads((lerobot_eval / "eval_info.json").read_text())["overall"]

@@ -53,8 +53,9 @@ def test_wheel_installed_outside_the_repo_trains_and_runs_the_demo(tmp_path):
     demo = subprocess.run([str(cli), "demo", "--out", "demo", "--num-episodes", "3", "--eval-episodes", "2"], cwd=work,
                           env=env, capture_output=True, text=True, timeout=1200)
     assert demo.returncode == 0, demo.stdout[-2000:] + demo.stderr[-2000:]
+    # the default tensorboard=auto: no TensorBoard on the core install, and the run goes on without it
     train = subprocess.run([str(cli), "train", "task=NeedleReach", "demos=none", "algo=ddpg", "experiment=smoke",
-                            "tensorboard=false", "progress=false", "run_dir=run"], cwd=work, env=env,
+                            "progress=false", "run_dir=run"], cwd=work, env=env,
                            capture_output=True, text=True, timeout=1200)
     assert train.returncode == 0, train.stdout[-2000:] + train.stderr[-2000:]
     assert (work / "run" / "metrics.jsonl").is_file()
@@ -88,3 +89,33 @@ def test_the_lerobot_train_extra_brings_what_each_documented_policy_needs():
     locked = {d["name"] for d in ours_locked["optional-dependencies"]["lerobot-train"]}
     assert "lerobot" in locked
     assert any(p["name"] == "diffusers" for p in lock["package"])   # what lerobot[diffusion] brings
+
+
+def test_uv_run_does_not_compile_the_environment_at_every_start():
+    """`uv run` with `compile-bytecode = true` in [tool.uv] recompiles every file of the environment (~15,000,
+    seconds) at every start, printing "Bytecode compiled N files"; a second `uv run` must go straight to the command."""
+    uv = shutil.which("uv")
+    if uv is None:
+        pytest.skip("needs uv")
+    command = [uv, "run", "--locked", "--group", "test", "python", "-c", "pass"]
+    subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=600, check=True)   # any sync first
+    again = subprocess.run(command, cwd=REPO, capture_output=True, text=True, timeout=600, check=True)
+    assert "Bytecode compiled" not in again.stderr, again.stderr
+
+
+def test_the_sdist_holds_code_configs_and_docs_only(tmp_path):
+    """The source distribution is small (it carried the demo sets and the study's runs: 34 MB): code, configs and the
+    docs' text, no `datasets/` nor `docs/results/`, under 2 MB."""
+    import tarfile
+
+    uv = shutil.which("uv")
+    if uv is None:
+        pytest.skip("needs uv")
+    subprocess.run([uv, "build", "--sdist", "--out-dir", str(tmp_path)], cwd=REPO, check=True, capture_output=True,
+                   timeout=600)
+    sdist = next(tmp_path.glob("surrol_data-*.tar.gz"))
+    assert sdist.stat().st_size <= 2_000_000, f"{sdist.stat().st_size / 1e6:.1f} MB"
+    with tarfile.open(sdist) as tar:
+        names = {"/".join(n.split("/")[1:]) for n in tar.getnames()}
+    assert {"surrol_data/cli.py", "configs/config.yaml", "pyproject.toml", "README.md", "docs/index.md"} <= names
+    assert not any(n.startswith(("datasets/", "docs/results/")) for n in names)

@@ -1,4 +1,4 @@
-"""A policy from a spec on the command line: ``"oracle"``, ``"lerobot:DIR"`` or a checkpoint path.
+"""A policy from a spec on the command line: ``"oracle"``, ``"lerobot:DIR"``, ``"robomimic:CKPT"`` or a checkpoint path.
 
 Evaluation takes any callable ``obs_dict -> action`` (:mod:`surrol_data.evaluation.rollout`); turning a spec into
 one belongs here, with the learners whose checkpoints it loads (the CLI, the demo and the study call it).
@@ -20,10 +20,14 @@ def load_policy(spec: str | Path) -> Policy | str:
         from surrol_data.evaluation.lerobot_policy import load_lerobot_policy
 
         return load_lerobot_policy(str(spec))
+    if str(spec).startswith("robomimic:"):
+        from surrol_data.evaluation.robomimic_policy import load_robomimic_policy
+
+        return load_robomimic_policy(str(spec))
     path = Path(spec)
     if not path.is_file():
-        raise FileNotFoundError(f"policy spec {str(spec)!r} is neither {ORACLE!r}, lerobot:DIR nor an existing "
-                                "checkpoint file")
+        raise FileNotFoundError(f"policy spec {str(spec)!r} is neither {ORACLE!r}, lerobot:DIR, robomimic:CKPT nor an "
+                                "existing checkpoint file")
     from surrol_data.algos.bc import BCPolicy  # only checkpoint users pay for importing torch
 
     return BCPolicy.load(path)

@@ -22,11 +22,15 @@ produces the same rows as one that never stopped (on one torch thread; wall time
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import math
 import os
 import shutil
+import signal
+import sys
+import threading
 import time
 from dataclasses import asdict, dataclass, field
 from functools import partial
@@ -131,12 +135,13 @@ class RunLog:
 
     def __init__(self, run_dir: Path, rows: list[dict], tensorboard: bool):
         self.run_dir, self.rows = run_dir, rows
-        self._rewrite()  # after a resume: drop any row written after the checkpoint that was restored
-        self.writer = None
-        if tensorboard:
+        if tensorboard:   # before any file is written: a start that fails here leaves nothing that refuses a rerun
             from surrol_data.extras import require
 
             require("tensorboard")   # torch's SummaryWriter needs it; a clear message names the extra
+        self._rewrite()  # after a resume: drop any row written after the checkpoint that was restored
+        self.writer = None
+        if tensorboard:
             from torch.utils.tensorboard import SummaryWriter
 
             self.writer = SummaryWriter(str(run_dir / "tb"), purge_step=(rows[-1]["epoch"] + 1) if rows else None)
@@ -188,7 +193,7 @@ def evaluate_policy(env: gym.Env, policy, episodes: int) -> dict:
 
 # How a run was launched, not what it computes: a resume may differ in them (a run begun with overwrite=true is
 # resumed with resume=true alone)
-LAUNCH_SETTINGS = ("resume", "overwrite", "progress")
+LAUNCH_SETTINGS = ("resume", "overwrite", "progress", "tensorboard")
 RUN_OUTPUTS = ("checkpoint.pt", "metrics.jsonl", "metrics.csv", "policy.pt", "config.json", "process.json", "tb")
 
 
@@ -274,13 +279,17 @@ def train(cfg: TrainConfig) -> list[dict]:
             row.update(probe(learner, *probe_set))
         state["wall_s"] += time.perf_counter() - started  # the epoch's collection, updates and evaluation
         row["wall_s"] = round(state["wall_s"], 3)
-        log.append(row)
-        policy.save(run_dir / "policy.pt")
-        _save_checkpoint(ckpt_path, cfg, learner, replay, demo_buffer, collect_rng, state, log.rows)
+        with _stop_signals_held():
+            log.append(row)
+            policy.save(run_dir / "policy.pt")
+            _save_checkpoint(ckpt_path, cfg, learner, replay, demo_buffer, collect_rng, state, log.rows)
 
     venv = None
     bar = tqdm(total=s.epochs, initial=state["epoch"], desc=f"train {cfg.env_id.split('/')[-1]}",
                unit="epoch", disable=not cfg.progress)
+    if cfg.progress and state["epoch"] < s.epochs:
+        tqdm.write(what_to_expect(cfg, state["epoch"]), file=sys.stderr)
+    timed_epoch = None   # the first epoch this process trains in full: its time foretells the rest
     try:
         # 2. offline phase (epoch 0): BC pre-training of the actor, unless a resumed run already did it
         if not log.rows and s.online:
@@ -306,16 +315,68 @@ def train(cfg: TrainConfig) -> list[dict]:
             else:
                 extra = _online_epoch(cfg, learner, venv, replay, demo_buffer, collect_rng, state)
             finish_epoch(extra, t0)
+            if timed_epoch is None and cfg.progress and state["epoch"] < s.epochs:
+                timed_epoch = state["epoch"]
+                tqdm.write(time_left(log.rows[-1], time.perf_counter() - t0, s.epochs - state["epoch"]),
+                           file=sys.stderr)
             bar.update(1)
             bar.set_postfix(success=f"{log.rows[-1]['success_rate']:.2f}", steps=state["env_steps"], refresh=False)
+    except BaseException:
+        stopped = True   # Ctrl-C, SIGTERM or an error: the epoch under way is dropped (the last checkpoint stands)
+        raise
+    else:
+        stopped = False
     finally:
         bar.close()
         log.close()
         _write_json(run_dir / "process.json", {**process, "finished": time.time(), "epochs_done": state["epoch"]})
         eval_env.close()
         if venv is not None:
-            venv.close()
+            # A stopped run ends its env workers rather than asking them to close: one may be mid-step, or gone (a
+            # signal to the whole process group), and its answer would be waited for forever.
+            venv.close(terminate=stopped)
     return log.rows
+
+
+# The reference protocol (20 cycles × 2 episodes × 50 steps, 800 updates, 20 evaluation episodes) on NeedlePick
+# with ddpgbc took 38–96 s an epoch on a shared 2-core CPU: the start-up estimate scales it by an epoch's env steps.
+REFERENCE_EPOCH_S = (38.0, 96.0)
+REFERENCE_EPOCH_STEPS = 20 * 2 * 50 + 20 * 50
+
+
+def what_to_expect(cfg: TrainConfig, done: int) -> str:
+    """What the epochs of a run are, about how long each takes before one is measured, and how early ones look."""
+    s = cfg.schedule
+    left = s.epochs - done
+    if not s.online:
+        return (f"{left} epoch(s) to go, each {s.offline_steps:,} BC steps and {s.eval_episodes} evaluation episodes; "
+                "every epoch is checkpointed (Ctrl-C, then resume=true)")
+    episodes = s.cycles * s.episodes_per_cycle
+    steps = episodes * s.max_episode_steps
+    scale = (steps + s.eval_episodes * s.max_episode_steps) / REFERENCE_EPOCH_STEPS
+    low, high = (scale * t for t in REFERENCE_EPOCH_S)
+    return (f"{left} epoch(s) to go, each {episodes} episodes ({steps:,} env steps in {s.n_envs} env process(es)), "
+            f"{s.cycles * s.updates_per_cycle:,} updates and {s.eval_episodes} evaluation episodes: about "
+            f"{_duration(low)}–{_duration(high)} an epoch on a 2-core CPU, {_duration(left * low)}–"
+            f"{_duration(left * high)} in all (measured after the first epoch). Success often stays at 0 for the "
+            "first epochs (with demos it may first fall from its BC level) while the critic learns, then climbs; "
+            "every epoch is checkpointed (Ctrl-C, then resume=true)")
+
+
+def time_left(row: dict, epoch_s: float, left: int) -> str:
+    """The measured time of the epoch of ``row`` and what it foretells for the ``left`` epochs to go."""
+    parts = [f"{name} {row[key]:.0f} s" for name, key in (("collect", "time_collect_s"), ("updates", "time_update_s"),
+                                                           ("evaluation", "time_eval_s")) if key in row]
+    return (f"epoch {row['epoch']} took {_duration(epoch_s)}" + (f" ({', '.join(parts)})" if parts else "")
+            + f": the {left} left take about {_duration(left * epoch_s)}")
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    if seconds < 90 * 60:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
 
 
 def _online_epoch(cfg: TrainConfig, learner, venv, replay: EpisodeReplay, demo_buffer: EpisodeReplay | None,
@@ -368,6 +429,30 @@ def _collect(venv, learner, seeds: list[int], steps: int, random_actions: bool, 
         acts.append(action)
     success_out.extend(np.asarray(info["is_success"], float).tolist())
     return np.stack(o), np.stack(ag), np.stack(g), np.stack(acts)
+
+
+@contextlib.contextmanager
+def _stop_signals_held():
+    """Ctrl-C or SIGTERM while an epoch's row, policy and checkpoint are written takes effect once they are: the
+    last epoch the metrics show is the one a resume starts after (a stop in between kept the row, lost the
+    checkpoint). Signals reach the main thread only; elsewhere nothing is held."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: list[int] = []
+    replaced = {}
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        handler = signal.getsignal(signum)
+        if handler not in (signal.SIG_IGN, None):
+            replaced[signum] = handler
+            signal.signal(signum, lambda n, frame: held.append(n))
+    try:
+        yield
+    finally:
+        for signum, handler in replaced.items():
+            signal.signal(signum, handler)
+        if held:
+            signal.raise_signal(held[0])   # now, to the handler it was meant for
 
 
 def _write_json(path: Path, data: dict) -> None:

@@ -34,7 +34,6 @@ from __future__ import annotations
 import contextlib
 import functools
 import json
-import os
 import sys
 import time
 from collections.abc import Sequence
@@ -45,7 +44,8 @@ import gymnasium as gym
 import numpy as np
 from tqdm import tqdm
 
-from surrol_data.collect.devices import BUTTON_TAKEOVER, HUMAN_DEVICES, Device, DeviceError, open_device
+from surrol_data.collect.devices import (BUTTON_TAKEOVER, HUMAN_DEVICES, Device, DeviceError, check_devices,
+                                         default_sides, open_device)
 from surrol_data.collect.devices.trace import mapping_from_dict, trace_path, write_trace
 from surrol_data.collect.mapping import ActionMapper, MappedStep, MappingSettings, frame_defaults, view_to_action
 from surrol_data.collect.operator import SimulatedOperator
@@ -60,6 +60,7 @@ from surrol_data.datasets.trajectory import TrajectoryBuilder
 from surrol_data.envs import env_id as make_env_id
 from surrol_data.envs.names import dimension_names, is_ecm_action
 from surrol_data.envs.units import ACTION_POSITION_M, ACTION_YAW_RAD, CONTROL_PERIOD_S
+from surrol_data.render.display import has_display
 
 # SurRoL-v2 recorded human NeedlePick demos with a 150-step horizon, 3× the scripted 50: people need the margin.
 HUMAN_HORIZON_FACTOR = 3
@@ -89,10 +90,6 @@ class HapticResult:
     @property
     def success_rate(self) -> float:
         return (self.attempts - self.failures) / self.attempts if self.attempts else float("nan")
-
-
-def has_display() -> bool:
-    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
 def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | Sequence[Device] = "touch",
@@ -156,6 +153,8 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
     import surrol_data.envs  # noqa: F401  (registers the ids)
 
     eid = make_env_id(task)
+    if isinstance(device, str):   # a device to plug in is found (or said missing) before the env and dataset start
+        check_devices(device, sides or default_sides(device, _device_count(eid)), library)
     seed = first_seed(out, append, seed, "haptic" if policy is None else "intervention")
     registered = gym.spec(eid).max_episode_steps
     replay_horizon = _replay_horizon(trace) if names == ["replay"] else None
@@ -227,16 +226,27 @@ def _human_horizon(eid: str, registered: int) -> int:
     """A person's horizon: HUMAN_HORIZON_FACTOR × the registered one (or the task's HUMAN_PACE_STEPS) in time, not
     steps (an ECM task's 0.1 s steps get twice as many), and twice that where two hands take turns (one waits while
     the other works)."""
-    from importlib import import_module
-
     from surrol_data.envs.physics import ECM_CONTROL_PERIOD_S
 
     registered = HUMAN_PACE_STEPS.get(eid.split("/")[-1].rsplit("-v", 1)[0], registered)
-    module, name = gym.spec(eid).entry_point.split(":")
-    action_dim = getattr(import_module(module), name).ACTION_DIM
+    action_dim = _action_dim(eid)
     if is_ecm_action(action_dim):      # one camera, 0.1 s steps
         return round(HUMAN_HORIZON_FACTOR * registered * CONTROL_PERIOD_S / ECM_CONTROL_PERIOD_S)
     return HUMAN_HORIZON_FACTOR * registered * (action_dim // 5)
+
+
+def _action_dim(eid: str) -> int:
+    """The action size of ``eid``, from its env class alone (no env is made)."""
+    from importlib import import_module
+
+    module, name = gym.spec(eid).entry_point.split(":")
+    return getattr(import_module(module), name).ACTION_DIM
+
+
+def _device_count(eid: str) -> int:
+    """Devices a session of ``eid`` needs: one per PSM (a 5-D half of the action), one for an ECM task's camera."""
+    action_dim = _action_dim(eid)
+    return 1 if is_ecm_action(action_dim) else action_dim // 5
 
 
 def _replay_horizon(trace) -> int | None:
@@ -265,9 +275,7 @@ class _Session:
         self.control_period_s = control_period_s(env)
         n_devices = 1 if self.ecm_only else act_dim // 5
 
-        if sides is None:
-            sides = ("right", "left") if n_devices == 2 and names[0] == "touch" else (None,) * n_devices
-        sides = list(sides)
+        sides = list(sides) if sides is not None else default_sides(names[0], n_devices)
         if len(sides) != n_devices:
             raise ValueError(f"{self.task} needs {n_devices} device(s), {len(sides)} side(s) given ({sides})")
         if mapping is None or isinstance(mapping, MappingSettings):
@@ -397,8 +405,7 @@ class _Session:
                 else:
                     res.ended_by = "done" if res.kept >= target else "attempts"
         except DeviceError as e:
-            raise DeviceError(f"{e} — the {res.kept} finished episode(s) of this session are saved in {self.out} "
-                              "(continue with --append)") from e
+            raise DeviceError(f"{e} — {self._what_is_kept()}") from e
         finally:
             bar.close()
             for dev in reversed(connected):
@@ -407,9 +414,17 @@ class _Session:
                 self.key_tracker.stop()
         if res.ended_by == "attempts":
             raise RuntimeError(f"only {res.kept} of {self.episodes} episodes of {self.task} succeeded in "
-                               f"{res.attempts} attempts (kept episodes are saved in {self.out}); use "
+                               f"{res.attempts} attempts ({self._what_is_kept()}); use "
                                "--keep-failures to record failures too")
         return res
+
+    def _what_is_kept(self) -> str:
+        """Where this session's finished episodes are, as the disk has it once the recorder has closed: a dataset
+        that no episode reached is not made, and is not named as if it were."""
+        if not (self.out / "meta" / "info.json").is_file():
+            return f"nothing was recorded (there is no dataset at {self.out})"
+        return (f"the {self.result.kept} finished episode(s) of this session are saved in {self.out} (continue with "
+                "--append)")
 
     def _attempt(self, attempt_seed: int, replayed):
         env = self.env

@@ -127,8 +127,43 @@ def check_finished(root: str | Path, target: Path, *, frames: bool = True) -> Pa
     if frames and not problems:
         remember_valid(digest)
     if problems:
+        if rewritten_by_lerobot(target):   # not damaged: lerobot's tools kept the frames, not our metadata
+            raise DatasetError(adopt_hint(root))
         listed = "\n  ".join(str(p) for p in problems)
         raise DatasetError(f"{root} is damaged ({len(problems)} problem(s)); nothing was done:\n  {listed}\n"
                            f"Run `surrol-data validate {root}` for the full check, `surrol-data repair {root}` "
                            "to keep its intact episodes.")
     return target
+
+
+def rewritten_by_lerobot(root: str | Path) -> bool:
+    """Whether ``root`` is a LeRobot dataset that lerobot's own tools wrote (``lerobot-edit-dataset``,
+    ``aggregate_datasets``) from ours: its info.json and frames are there, our sidecar or the episodes' provenance
+    columns are not — what ``surrol-data adopt`` restores (``repair`` keeps episodes; it has none to drop here)."""
+    import pyarrow.parquet as pq
+
+    from surrol_data.datasets.reader import EPISODES_DIR, INFO_PATH, parquet_files
+    from surrol_data.datasets.schema import PROVENANCE_PREFIX, SIDECAR_PATH
+
+    import json
+
+    root = Path(root)
+    try:
+        features = json.loads((root / INFO_PATH).read_text()).get("features", {})
+    except (OSError, ValueError):
+        return False
+    if "complementary_info.tip_position" not in features:   # not made from one of ours (our frames hold the tip)
+        return False
+    if not (root / SIDECAR_PATH).is_file():
+        return True
+    try:
+        files = parquet_files(root, EPISODES_DIR)
+        return bool(files) and not any(n.startswith(PROVENANCE_PREFIX) for n in pq.read_schema(files[0]).names)
+    except Exception:  # noqa: BLE001 - an unreadable episodes file is damage, for the caller's message to say
+        return False
+
+
+def adopt_hint(root: str | Path) -> str:
+    return (f"{root} was rewritten by lerobot's own tools (lerobot-edit-dataset, aggregate_datasets): its frames are "
+            "there, our provenance, sidecar and device traces are not. Take it back with `surrol-data adopt "
+            f"{root} --from ORIGINAL` (repeat --from for each dataset it was made from); nothing was done")

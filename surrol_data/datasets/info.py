@@ -92,10 +92,12 @@ SKILL_GROUP_BY = ("source", "skill")
 
 
 def _smoothness(reader: DatasetReader, episodes: list[int]) -> list[float]:
-    """LDLJ of each episode's tip path up to success — what :func:`~surrol_data.datasets.metrics.trajectory_proficiency`
-    reports without a device trace — from the three frame columns it needs, each data file read once (a Trajectory
-    and every metric per episode cost ~10 ms an episode)."""
-    from surrol_data.datasets.metrics import log_dimensionless_jerk, steps_to_success
+    """LDLJ of each episode, as :func:`~surrol_data.datasets.metrics.trajectory_proficiency` (and so ``assess``)
+    reports it: of the device's recorded trace where the episode has one, else of the tip path up to success — from
+    the three frame columns it needs, each data file read once (a Trajectory and every metric per episode cost
+    ~10 ms an episode)."""
+    from surrol_data.datasets.metrics import (CONTROL_PERIOD_S, log_dimensionless_jerk, recorded_device_trace,
+                                              smoothness_path, steps_to_success)
     from surrol_data.datasets.reader import column_to_numpy
 
     if not episodes:
@@ -121,7 +123,9 @@ def _smoothness(reader: DatasetReader, episodes: list[int]) -> list[float]:
                                f"for the full check, `surrol-data repair {reader.root}` to keep its intact episodes")
         path = np.concatenate([tips[start:start + n], next_tips[start + n - 1:start + n]]).astype(np.float64)
         k = steps_to_success(success[start:start + n])
-        out.append(log_dimensionless_jerk(path[: k + 1] if k > 0 else path))
+        smooth, dt, _ = smoothness_path(path[: k + 1] if k > 0 else path, CONTROL_PERIOD_S,
+                                        recorded_device_trace(reader.root, ep))
+        out.append(log_dimensionless_jerk(smooth, dt))
     return out
 
 

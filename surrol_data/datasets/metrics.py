@@ -21,6 +21,7 @@ Counts that need a record the trajectory does not carry (grasp state, collisions
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -257,6 +258,30 @@ class DeviceTrace:
         return np.stack([np.interp(grid, t, p[:, k]) for k in range(p.shape[1])], axis=1), dt
 
 
+# Where a haptic session saved its device's own samples (= surrol_data.collect.devices.trace: not imported, the
+# dataset layer sits below the devices): frames (n_devices, T, 8) with x, y, z (mm), gimbals, buttons, t (s).
+TRACE_FILE = "meta/device_traces/episode_{:06d}.npz"
+
+
+def recorded_device_trace(root: str | Path, episode: int) -> DeviceTrace | None:
+    """The first device's trace of ``episode`` of the dataset at ``root``, or None where none was recorded."""
+    path = Path(root) / TRACE_FILE.format(int(episode))
+    if not path.is_file():
+        return None
+    with np.load(path, allow_pickle=False) as z:
+        frames = z["frames"][0]
+    return DeviceTrace(position=frames[:, :3], t=frames[:, 7])
+
+
+def smoothness_path(tip_upto_success: np.ndarray, dt: float,
+                    device_trace: DeviceTrace | None) -> tuple[np.ndarray, float, str]:
+    """The path smoothness (LDLJ, SPARC) is measured on, its sample interval and its name: the device's own trace
+    where one holds five samples or more (a person's hand at its own rate), else the tool tip up to success."""
+    if device_trace is not None and len(device_trace.t) >= 5:
+        return *device_trace.resampled(), "device"
+    return tip_upto_success, dt, "tip"
+
+
 # ---------------------------------------------------------------------------------------------- one trajectory
 def proficiency(tip_position: np.ndarray, success: np.ndarray, jaw_command: np.ndarray | None = None,
                 clutch: np.ndarray | None = None, dt: float = CONTROL_PERIOD_S, *,
@@ -273,10 +298,7 @@ def proficiency(tip_position: np.ndarray, success: np.ndarray, jaw_command: np.n
     upto = tip[: k + 1] if k > 0 else tip
     per_arm = 100.0 * path_length_per_arm_m(upto)
     has_jaw = jaw_command is not None and len(jaw_command) == n and n > 0
-    if device_trace is not None and len(device_trace.t) >= 5:
-        smooth_path, smooth_dt, source = *device_trace.resampled(), "device"
-    else:
-        smooth_path, smooth_dt, source = upto, dt, "tip"
+    smooth_path, smooth_dt, source = smoothness_path(upto, dt, device_trace)
     if drop is not None:
         n_drops = float(rising_edges(drop))
     elif grasped is not None and has_jaw:

@@ -26,7 +26,7 @@ import pandas as pd
 
 from surrol_data.datasets.interventions import trajectory_interventions
 from surrol_data.datasets.reader import DatasetReader
-from surrol_data.datasets.metrics import DeviceTrace, trajectory_proficiency
+from surrol_data.datasets.metrics import recorded_device_trace, trajectory_proficiency
 from surrol_data.evaluation.report import Column, metrics_table_markdown
 
 BENCHMARK_METRICS = ("steps_to_success", "path_length_cm", "errors")
@@ -61,16 +61,6 @@ class Assessment:
     skills: pd.DataFrame            # one row per skill
 
 
-def _trace_of(root: Path, episode: int) -> DeviceTrace | None:
-    from surrol_data.collect.devices.trace import read_trace, trace_path
-
-    path = trace_path(root, episode)
-    if not path.is_file():
-        return None
-    frames = read_trace(path).frames[0]      # the first device; columns x, y, z (mm), gimbals, buttons, t
-    return DeviceTrace(position=frames[:, :3], t=frames[:, 7])
-
-
 def _errors(row: pd.Series) -> float:
     known = [v for v in (row["failed_grasps"], row["drops"]) if np.isfinite(v)]
     return float(sum(known)) if known else math.nan
@@ -79,7 +69,7 @@ def _errors(row: pd.Series) -> float:
 def score_episodes(reader: DatasetReader) -> pd.DataFrame:
     rows = []
     for meta, traj in zip(reader.episodes.to_dict("records"), reader.trajectories()):
-        prof = trajectory_proficiency(traj, device_trace=_trace_of(reader.root, int(meta["episode_index"])))
+        prof = trajectory_proficiency(traj, device_trace=recorded_device_trace(reader.root, int(meta["episode_index"])))
         counts = trajectory_interventions(traj)
         rows.append({"episode_index": int(meta["episode_index"]), "source": meta.get("source", "unknown"),
                      "skill": meta.get("skill", "unknown"), "operator_id": meta.get("operator_id", "") or "–",

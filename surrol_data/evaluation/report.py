@@ -222,8 +222,13 @@ def write_report(out_dir: str | Path, title: str, *,
     if rrd_path is not None:
         rrd = Path(rrd_path)
         link = _relative_link(rrd, out_dir)
+        from surrol_data.viz.open_command import rerun_open_command, web_view_command
+
+        # from the report's folder: the native viewer needs a display; the web viewer serves it to a browser
         lines += ["## Recording", "",
-                  f"Episodes in Rerun: [{rrd.name}]({link}) — open with `rerun {link}`.", ""]
+                  f"Episodes in Rerun: [{rrd.name}]({link}) — open it from this folder with "
+                  f"`{rerun_open_command(link)}` on a desktop, or serve it to a browser with "
+                  f"`{web_view_command(link)}` (an SSH session, a container).", ""]
     for heading, text in sections:
         lines += [f"## {heading}", "", text.strip(), ""]
 

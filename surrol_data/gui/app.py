@@ -31,7 +31,7 @@ import gymnasium as gym
 
 import surrol_data.envs  # noqa: F401  (registers the tasks)
 from surrol_data.collect.devices.keyboard import DISCARD_KEY, QUIT_KEY, REDO_KEY, SAVE_KEY, TAKEOVER_KEY
-from surrol_data.collect.haptic_source import SKILLS, control_period_s, has_display
+from surrol_data.collect.haptic_source import SKILLS, control_period_s
 from surrol_data.envs import TASKS, env_id
 from surrol_data.envs.names import is_ecm_action
 from surrol_data.gui.hud import Hud
@@ -77,8 +77,8 @@ class TrainingApp:
         display.configure()
         from panda3d.core import loadPrcFileData
 
-        self.offscreen = (not has_display()) if offscreen is None else offscreen
-        if not self.offscreen and not has_display():
+        self.offscreen = (not display.has_display()) if offscreen is None else offscreen
+        if not self.offscreen and not display.has_display():
             raise display.RendererUnavailable("an on-screen window needs a display (DISPLAY / WAYLAND_DISPLAY is "
                                               "unset); run with --offscreen, or under Xvfb")
         if self.offscreen:
@@ -91,7 +91,15 @@ class TrainingApp:
                                            "framebuffer-multisample false\nmultisamples 0\n")
         from direct.showbase.ShowBase import ShowBase
 
-        self.base = ShowBase(windowType="offscreen" if self.offscreen else "onscreen")
+        try:
+            self.base = ShowBase(windowType="offscreen" if self.offscreen else "onscreen")
+        except Exception as e:   # noqa: BLE001 - Panda3D says only "Could not open window." (a bare Exception)
+            if self.offscreen:
+                raise
+            raise display.RendererUnavailable(
+                f"could not open a window on the display {display.display_name()!r} ({e}): check that it is "
+                "reachable (`xdpyinfo`), or run under a virtual display (`xvfb-run -a surrol-data gui --onscreen`, "
+                "Debian package xvfb)") from None
         self.base.disable_mouse()
         self.base.set_background_color(0.03, 0.03, 0.035, 1)
         self.size = size

@@ -9,6 +9,7 @@ Debian packages that provide them.
 from __future__ import annotations
 
 import functools
+import os
 
 # Debian packages that provide EGL and Mesa's software OpenGL (named in errors and test skips).
 GL_PACKAGES = "libegl1 libegl-mesa0 libgl1-mesa-dri"
@@ -31,6 +32,31 @@ multisamples 4
 def in_words_of(message: str, instead: str) -> str:
     """``message`` with the API's way around Panda3D replaced by a command's (``""``: a command that has none)."""
     return message.replace(TINY_INSTEAD, instead)
+
+
+def display_name() -> str:
+    """The X or Wayland display named by DISPLAY / WAYLAND_DISPLAY ("" for none)."""
+    return os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") or ""
+
+
+def has_display() -> bool:
+    """Whether a window can be asked for: an X or Wayland display is named (DISPLAY / WAYLAND_DISPLAY)."""
+    return bool(display_name())
+
+
+def no_window_here(offscreen: bool | None, runs_alone: bool) -> str | None:
+    """Why the training GUI must not start, or None: a window needs a display, and a window drawn offscreen is seen
+    by nobody and takes no input, so it runs only when it plays by itself (``runs_alone``: ``--autoplay``). Without
+    this, a GUI started where there is no display would draw an invisible window until killed."""
+    headless = "or headless with --offscreen --task TASK --autoplay N (records N episodes; --screenshot FILE.png)"
+    if offscreen is None and not has_display():
+        return ("no display to open the GUI's window on (DISPLAY and WAYLAND_DISPLAY are unset): run it on a "
+                "desktop, under a virtual display (`xvfb-run -a surrol-data gui --onscreen`, Debian package xvfb), "
+                + headless)
+    if offscreen and not runs_alone:
+        return ("--offscreen draws a window nobody sees and that takes no input: add --task TASK --autoplay N to "
+                "record N episodes headless, or open a window with --onscreen (on a display or under Xvfb)")
+    return None
 
 
 class RendererUnavailable(RuntimeError):

@@ -28,11 +28,12 @@ if TYPE_CHECKING:   # mapping imports devices.base, so importing it here at run 
 
 DEVICE_NAMES = ("touch", "keyboard", "gamepad", "spacemouse", "replay", "operator")
 HUMAN_DEVICES = ("touch", "keyboard", "gamepad", "spacemouse")   # paced in real time, may show a GUI
+PLUGGED_DEVICES = ("touch", "gamepad", "spacemouse")   # hardware: found (or not) before a session starts
 SIDES = ("left", "right")
 
 __all__ = ["BUTTON_CLUTCH", "BUTTON_JAW", "BUTTON_TAKEOVER",
-           "DEVICE_NAMES", "Device", "DeviceError", "DeviceFrame", "HUMAN_DEVICES",
-           "open_device"]
+           "DEVICE_NAMES", "Device", "DeviceError", "DeviceFrame", "HUMAN_DEVICES", "PLUGGED_DEVICES",
+           "check_devices", "default_sides", "open_device"]
 
 
 def open_device(name: str, *, arm: int = 0, side: str | None = None, env=None, mapping: MappingSettings | None = None,
@@ -89,3 +90,21 @@ def open_device(name: str, *, arm: int = 0, side: str | None = None, env=None, m
     except ImportError as e:
         raise DeviceError(f"the simulated operator is not available in this version ({e})") from None
     return SimulatedOperator(env, skill, operator_id, mapping or MappingSettings(), seed, arm=arm)
+
+
+def default_sides(name: str, n_devices: int) -> list[str | None]:
+    """The device side of each arm when none is given: two Touch styli are the named Right (PSM1) and Left (PSM2);
+    any other device is the default one of its kind."""
+    return ["right", "left"] if n_devices == 2 and name == "touch" else [None] * n_devices
+
+
+def check_devices(name: str, sides, library: str | Path | None = None) -> None:
+    """Open and close the hardware device ``name`` once per side: a missing SDK, driver or extra, or a device that is
+    not plugged in, is a :class:`DeviceError` saying what to do, before a session spends seconds on its env and
+    dataset. Other devices (keyboard, replay, operator) need nothing checked."""
+    if name not in PLUGGED_DEVICES:
+        return
+    for arm, side in enumerate(sides):
+        device = open_device(name, arm=arm, side=side, library=library)
+        device.connect()
+        device.disconnect()

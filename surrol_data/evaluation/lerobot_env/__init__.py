@@ -1,12 +1,13 @@
 """The SurRoL tasks as a LeRobot env, so ``lerobot-eval`` (and ``lerobot-train``'s periodic eval) can run them.
 
 LeRobot 0.6 finds third-party envs through its config registry (``EnvConfig.register_subclass``); importing
-this module registers ``--env.type=surrol``, and lerobot's parser imports it when given
-``--env.discover_packages_path=surrol_data.evaluation.lerobot_env`` (lerobot's parser wants a package there,
-hence this module is one)::
+this module registers ``--env.type=surrol``. LeRobot's scripts import every installed distribution named
+``lerobot_env_*`` first: the ``lerobot_env_surrol`` plugin (``plugins/lerobot_env_surrol``, installed in a clone by
+``uv sync``/``uv run``) imports this module, so no other flag is needed (elsewhere,
+``--env.discover_packages_path=surrol_data.evaluation.lerobot_env`` does the same; lerobot's parser wants a package
+there, hence this module is one)::
 
-    lerobot-eval --env.discover_packages_path=surrol_data.evaluation.lerobot_env --env.type=surrol \\
-        --env.task=NeedlePick --policy.path=OUT/checkpoints/last/pretrained_model \\
+    lerobot-eval --env.type=surrol --env.task=NeedlePick --policy.path=OUT/checkpoints/last/pretrained_model \\
         --eval.n_episodes=10 --eval.batch_size=1
 
 :class:`LerobotObservation` gives each env's observation the names lerobot's ``preprocess_observation`` maps
@@ -98,10 +99,15 @@ class SurrolEnv(EnvConfig):
     def __post_init__(self):
         import surrol_data.envs  # noqa: F401  (registers the SurRoL/* ids)
 
+        size = policy_image_size()
         if self.camera_width <= 0 and self.camera_height <= 0:
-            size = policy_image_size()
             if size is not None:   # the policy reads the endoscope image: the env renders it at its size
                 self.camera_height, self.camera_width = size
+        elif size is not None and (self.camera_height, self.camera_width) != size:
+            # lerobot would resize nothing and run the policy on images it never saw: refused, saying both sizes
+            raise ValueError(f"--env.camera_width/height {self.camera_width}x{self.camera_height} differ from the "
+                             f"{size[1]}x{size[0]} endoscope images the policy was trained on: leave them out (the "
+                             "env then renders at the policy's size) or give the policy's")
 
         env = gym.make(self.gym_id)
         try:
