@@ -82,7 +82,7 @@ PROFILES: dict[str, OperatorParams] = {
         frame_rotation_deg=0.0, frame_rotation_spread_deg=5.0,
         accuracy_mm=0.6, yaw_accuracy_rad=0.08, max_corrections=3, hesitation_probability=0.1, hesitation_mean_s=0.3,
         clutch_margin_mm=8.0, anticipates_clutch=True, jaw_wait_s=0.5, backoff_mm=6.0, max_grasp_attempts=4,
-        early_close_probability=0.15, early_close_slack=3.0, grip_lapse_per_s=0.02, grip_lapse_s=0.5),
+        early_close_probability=0.3, early_close_slack=3.0, grip_lapse_per_s=0.03, grip_lapse_s=0.5),
     "novice": OperatorParams(
         skill="novice", reaction_time_s=0.35, reaction_jitter=0.25, fitts_intercept_s=0.35, fitts_slope_s_per_bit=0.2,
         speed_fraction=0.72, endpoint_sd=0.12, drift_sd=0.06, tremor_mm=0.2, tremor_hz=9.0, tremor_gimbal_rad=0.006,
@@ -91,7 +91,7 @@ PROFILES: dict[str, OperatorParams] = {
         frame_rotation_deg=0.0, frame_rotation_spread_deg=10.0,
         accuracy_mm=1.0, yaw_accuracy_rad=0.15, max_corrections=4, hesitation_probability=0.4, hesitation_mean_s=0.6,
         clutch_margin_mm=4.0, anticipates_clutch=False, jaw_wait_s=0.8, backoff_mm=10.0, max_grasp_attempts=4,
-        early_close_probability=0.35, early_close_slack=4.0, grip_lapse_per_s=0.05, grip_lapse_s=0.6),
+        early_close_probability=0.3, early_close_slack=4.0, grip_lapse_per_s=0.05, grip_lapse_s=0.6),
 }
 
 # Matched profiles (issue 15): the paper's demo sources were matched "for fairness" — mean completion 113 steps
@@ -112,7 +112,7 @@ MATCHED_PROFILES: dict[str, OperatorParams] = {
     "novice_matched": dataclasses.replace(
         PROFILES["novice"], frame_rotation_spread_deg=2.0, internal_gain_spread=0.04, endpoint_sd=0.06, drift_sd=0.03,
         weber_fraction=0.04, lateral_noise_mm=0.3, depth_noise_mm=0.5, accuracy_mm=0.6, max_corrections=6,
-        speed_fraction=0.6, depth_bias_mm=0.9, backoff_mm=6.0),
+        speed_fraction=0.6, depth_bias_mm=0.9, backoff_mm=4.0, early_close_probability=0.6, early_close_slack=5.0),
 }
 ALL_PROFILES: dict[str, OperatorParams] = {**PROFILES, **MATCHED_PROFILES}
 
