@@ -103,16 +103,21 @@ PROFILES: dict[str, OperatorParams] = {
 # novice with a path near the paper novices' (a better-aligned felt frame and gain, less endpoint scatter and
 # perception noise, the expert's accuracy reached with more corrections, a smaller height misjudgement, a shorter
 # back-off, a slower pace). Skill still shows where the paper's non-experts differed: tremor, hesitation (idle),
-# the height misjudgement behind failed grasps and recoveries, reactive clutching, reaction and Fitts timing.
-# Calibrated with ``benchmarks/demo_sources.py`` (100 episodes per source, 4 operators × 25).
+# the height misjudgement behind failed grasps and recoveries, reactive clutching, reaction and Fitts timing, and
+# the slips (slips.py): the matched novice hurries twice as many grasps as the matched expert and accepts a looser
+# approach, so fails more than twice as many attempts; both lapse less per second than at their own pace (the slow,
+# deliberate carry of the matched pace would otherwise multiply the expert's drops), the novice still 3× the expert.
+# Calibrated with ``benchmarks/demo_sources.py`` (100 episodes per source, 4 operators × 25) and
+# ``benchmarks/operator_profiles.py --matched``.
 MATCHED_PROFILES: dict[str, OperatorParams] = {
     "expert_matched": dataclasses.replace(
         PROFILES["expert"], speed_fraction=0.34, fitts_intercept_s=0.3, jaw_wait_s=1.0, frame_rotation_spread_deg=2.0,
-        clutch_margin_mm=3.0),
+        clutch_margin_mm=3.0, early_close_probability=0.2, grip_lapse_per_s=0.012),
     "novice_matched": dataclasses.replace(
-        PROFILES["novice"], frame_rotation_spread_deg=2.0, internal_gain_spread=0.04, endpoint_sd=0.06, drift_sd=0.03,
-        weber_fraction=0.04, lateral_noise_mm=0.3, depth_noise_mm=0.5, accuracy_mm=0.6, max_corrections=6,
-        speed_fraction=0.6, depth_bias_mm=0.9, backoff_mm=4.0, early_close_probability=0.6, early_close_slack=5.0),
+        PROFILES["novice"], frame_rotation_spread_deg=2.0, internal_gain_spread=0.04, endpoint_sd=0.05, drift_sd=0.03,
+        weber_fraction=0.03, lateral_noise_mm=0.25, depth_noise_mm=0.5, accuracy_mm=0.6, max_corrections=6,
+        speed_fraction=0.52, depth_bias_mm=0.9, backoff_mm=4.0, early_close_probability=0.6, early_close_slack=5.0,
+        grip_lapse_per_s=0.035),
 }
 ALL_PROFILES: dict[str, OperatorParams] = {**PROFILES, **MATCHED_PROFILES}
 
