@@ -259,6 +259,7 @@ class SimulatedOperator(Device):
         self._hold_height = 0.0
         self._hold_tip = np.zeros(3)
         self._grasp_segment: tuple[int, int] | None = None
+        self._reanchor: tuple[int, int] | None = None   # a grasp segment to aim at the object again (after a failure)
         self._failures = 0
         self._placements_failed = 0
         self._placed_at: float | None = None   # when the jaw let go of the object at its seat (the last placement)
@@ -420,6 +421,8 @@ class SimulatedOperator(Device):
     def _decide(self, t: float) -> None:
         """Look at the scene and choose the next action; sets when to look again."""
         self._next_decision_s = t + self._period
+        if self._reanchor is not None:
+            self._aim_at_object_again()
         while not self._idle:
             waits_on = self._team or self._gate
             if waits_on is not None and not waits_on.may_start(self, self._index):
@@ -469,6 +472,15 @@ class SimulatedOperator(Device):
             return (max(goal.tol_mm, _PLACING_ACCURACY * p.accuracy_mm),
                     max(goal.yaw_tol, _PLACING_ACCURACY * p.yaw_accuracy_rad), _PLACING_CORRECTIONS * p.max_corrections)
         return max(goal.tol_mm, p.accuracy_mm), max(goal.yaw_tol, p.yaw_accuracy_rad), p.max_corrections
+
+    def _aim_at_object_again(self) -> None:
+        """After a failed grasp or a drop: the grasp's steps follow the object to where it lies now."""
+        start, close = self._reanchor
+        self._reanchor = None
+        state = np.asarray(self._obs["observation"], np.float64)
+        point, yaw = state[_OBJECT_POINT], float(state[_OBJECT_YAW])
+        # Indices stay those of the task's plan (the other hand of a bimanual task keeps to them too).
+        self._plan[start:close + 1] = [g.moved_with_object(point, yaw) for g in self._plan[start:close + 1]]
 
     def _hurried(self, index: int) -> bool:
         """Step ``index`` approaches a grasp (the next step closes the jaw) and this attempt at it is hurried."""
@@ -726,10 +738,10 @@ class SimulatedOperator(Device):
         # The failure showed the person their height misjudgement: most of it is corrected for the retry.
         self._depth_bias *= p.depth_learning
         state = np.asarray(self._obs["observation"], np.float64)
-        point, yaw = state[_OBJECT_POINT], float(state[_OBJECT_YAW])
         start, close = self._grasp_segment
-        # Indices stay those of the task's plan (the other hand of a bimanual task keeps to them too).
-        self._plan[start:close + 1] = [g.moved_with_object(point, yaw) for g in self._plan[start:close + 1]]
+        # The grasp is aimed again at the object where it lies once the person looks again, after backing off: an
+        # object that fell from the jaw is still falling when the person sees it go.
+        self._reanchor = (start, close)
         self._index = start
         self._corrections = 0
         self._fresh = True
