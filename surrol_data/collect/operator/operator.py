@@ -467,7 +467,8 @@ class SimulatedOperator(Device):
         p = self.params
         if self._hurried(self._index):
             # A hurried grasp: the approach looks good enough sooner, after one correction at most (slips.py).
-            return (p.early_close_slack * max(goal.tol_mm, p.accuracy_mm), p.early_close_slack * max(goal.yaw_tol, p.yaw_accuracy_rad), 1)
+            slack = p.early_close_slack
+            return slack * max(goal.tol_mm, p.accuracy_mm), slack * max(goal.yaw_tol, p.yaw_accuracy_rad), 1
         if goal.placing:
             return (max(goal.tol_mm, _PLACING_ACCURACY * p.accuracy_mm),
                     max(goal.yaw_tol, _PLACING_ACCURACY * p.yaw_accuracy_rad), _PLACING_CORRECTIONS * p.max_corrections)
