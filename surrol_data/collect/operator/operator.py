@@ -509,6 +509,11 @@ class SimulatedOperator(Device):
             return
         if self._hand.busy_until() <= t or self._info.get("is_success", 0.0):
             return
+        # Only where the plan places nothing (NeedlePick: lift and carry): a peg or block that falls lands
+        # on its side, which this operator cannot pick up again, so on the placing tasks a lapse ended the episode
+        # (PegBoard's novice succeeded in 2 of 10 episodes instead of 10).
+        if any(g.placing for g in self._plan):
+            return
         duration = self._slips.lapse(self._period)
         if duration > 0.0:
             self._lapse_from, self._lapse_until = t, t + duration
