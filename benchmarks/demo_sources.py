@@ -32,9 +32,13 @@ def main() -> int:
     parser.add_argument("--operators", type=int, default=4, help="simulated operators per skill")
     parser.add_argument("--out", type=Path, default=None,
                         help="folder for the datasets (default runs/demo_sources/matched or natural)")
+    parser.add_argument("--ship", action="store_true",
+                        help="build the sets to ship into --out (packed, with the manifest of their hashes), as "
+                             "`surrol-data study table1 --build-demos` does: e.g. --out datasets/table1_v2")
     args = parser.parse_args()
 
     from surrol_data.study import StudySpec, build_demo_sets, demo_quality, demo_quality_markdown
+    from surrol_data.study.demo_sets import build_shipped_demo_sets
 
     kind = "natural" if args.natural else "matched"
     out = args.out or REPO / "runs" / "demo_sources" / kind
@@ -42,7 +46,9 @@ def main() -> int:
     console = Console(width=180)
     console.print(f"building {kind} demo sets in {out} ({args.episodes} per source, {args.operators} operators per "
                   "skill, 150-step horizon)")
-    rows = demo_quality(build_demo_sets(out, spec))
+    if args.ship and args.out is None:
+        parser.error("--ship needs --out (the folder the sets are shipped in, e.g. datasets/table1_v2)")
+    rows = demo_quality((build_shipped_demo_sets if args.ship else build_demo_sets)(out, spec))
     markdown = f"# NeedlePick demo sources ({kind}) beside the paper's\n\n{demo_quality_markdown(rows, not args.natural)}"
     console.print(Markdown(markdown))
     (out / "demos.md").write_text(markdown)

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from surrol_data.datasets.attempts import trajectory_attempts
 from surrol_data.datasets.interventions import trajectory_interventions
 from surrol_data.datasets.reader import DatasetReader
 from surrol_data.datasets.metrics import recorded_device_trace, trajectory_proficiency
@@ -71,9 +72,12 @@ def score_episodes(reader: DatasetReader) -> pd.DataFrame:
     for meta, traj in zip(reader.episodes.to_dict("records"), reader.trajectories()):
         prof = trajectory_proficiency(traj, device_trace=recorded_device_trace(reader.root, int(meta["episode_index"])))
         counts = trajectory_interventions(traj)
+        attempts = trajectory_attempts(traj)
         rows.append({"episode_index": int(meta["episode_index"]), "source": meta.get("source", "unknown"),
                      "skill": meta.get("skill", "unknown"), "operator_id": meta.get("operator_id", "") or "–",
                      **prof.as_dict(),
+                     # grasp attempts, failed attempts and retries (datasets/attempts.py), where the task has them
+                     **({} if attempts is None else attempts.as_row()),
                      **({} if counts is None else {"takeovers": counts.takeovers,
                                                    "intervention_frames": counts.intervention_frames,
                                                    "time_to_takeover_s": counts.time_to_takeover_s})})

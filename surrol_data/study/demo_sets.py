@@ -31,6 +31,8 @@ DEMO_COLUMNS = (
     Column("log_dimensionless_jerk", "LDLJ", lambda v: f"{v:.1f}"),
     Column("idle_time_s", "Idle (s)", lambda v: f"{v:.1f}"),
     Column("failed_grasps", "Failed grasps", lambda v: f"{v:.2f}"),
+    Column("failed_attempts", "Failed attempts", lambda v: f"{v:.2f}"),
+    Column("retries", "Retries", lambda v: f"{v:.2f}"),
     Column("jaw_closures", "Jaw closures", lambda v: f"{v:.2f}"),
     Column("clutch_uses", "Clutch", lambda v: f"{v:.1f}"),
 )
@@ -183,6 +185,9 @@ def demo_quality(sets: dict[str, Path]) -> list[dict]:
             return float(v.mean()) if v.notna().any() else math.nan
 
         rows.append({"source": source, "episodes": len(ep), "steps_to_success": steps, "paper_steps": paper_steps,
+                     "failed_attempts": mean(ep, "failed_attempts") if "failed_attempts" in ep else math.nan,
+                     "retries": mean(ep, "retries") if "retries" in ep else math.nan,
+                     "per_demo": _per_demo(ep),
                      "path_length_cm": path_cm, "paper_path": paper_path, "matched": "yes" if within else "no",
                      "sparc": mean(ok, "sparc"), "log_dimensionless_jerk": mean(ok, "log_dimensionless_jerk"),
                      "idle_time_s": mean(ep, "idle_time_s"), "failed_grasps": mean(ep, "failed_grasps"),
@@ -190,10 +195,63 @@ def demo_quality(sets: dict[str, Path]) -> list[dict]:
     return rows
 
 
+# The per-demo distributions demos.md shows beside the means: (column, header, successes only, digits).
+DISTRIBUTIONS = (("steps_to_success", "Steps to complete", True, 0), ("path_length_cm", "Path (cm)", True, 1),
+                 ("failed_attempts", "Failed attempts", False, 0), ("retries", "Retries", False, 0))
+
+
+def _per_demo(ep) -> dict[str, list[float]]:
+    """Each distribution's values, one per demo (successful demos only for steps and path)."""
+    out = {}
+    for col, _, successes, _ in DISTRIBUTIONS:
+        if col in ep:
+            frame = ep[ep["success"]] if successes else ep
+            out[col] = [float(v) for v in frame[col].astype(float) if math.isfinite(v)]
+    return out
+
+
+def _spread(values: list[float], digits: int) -> str:
+    """median [quartiles], range"""
+    import numpy as np
+
+    if not values:
+        return "—"
+    q = np.percentile(values, [0, 25, 50, 75, 100])
+    f = f"{{:.{digits}f}}"
+    return f"{f.format(q[2])} [{f.format(q[1])}–{f.format(q[3])}], {f.format(q[0])}–{f.format(q[4])}"
+
+
+def _counts(values: list[float]) -> str:
+    """Share (%) of demos with 0, 1, 2 and 3 or more (of a count)."""
+    if not values:
+        return "—"
+    n = len(values)
+    shares = [sum(v == k for v in values) for k in (0, 1, 2)] + [sum(v >= 3 for v in values)]
+    return " / ".join(f"{100 * c / n:.0f}" for c in shares)
+
+
+def demo_distributions_markdown(rows: list[dict]) -> str:
+    """Per source, the distribution over its demos of steps, path, failed attempts and retries."""
+    lines = ["| Source | " + " | ".join(h for _, h, _, _ in DISTRIBUTIONS)
+             + " | Failed attempts 0 / 1 / 2 / 3+ (% of demos) | Retries 0 / 1 / 2 / 3+ (% of demos) |",
+             "|:---|" + "---:|" * (len(DISTRIBUTIONS) + 2)]
+    for row in rows:
+        per = row.get("per_demo", {})
+        cells = [_spread(per.get(col, []), digits) for col, _, _, digits in DISTRIBUTIONS]
+        cells += [_counts(per.get("failed_attempts", [])), _counts(per.get("retries", []))]
+        lines.append(f"| {row['source']} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def demo_quality_markdown(rows: list[dict], matched: bool) -> str:
     kind = "matched to the paper's demo sets" if matched else "natural (each operator's own pace; not matched)"
     return (f"Demo sets {kind}. Steps and path: means over successful episodes; smoothness (SPARC, LDLJ: higher is "
             "smoother) from the device trace where there is one (the simulated operators'), from the tool tip for "
-            "the script; idle, failed grasps, jaw closures and clutch uses: means per episode. The human demos come "
-            "from simulated operators (a motor-control model), not from people.\n\n"
-            + metrics_table_markdown(rows, DEMO_COLUMNS))
+            "the script; idle, failed grasps, failed attempts, retries, jaw closures and clutch uses: means per "
+            "episode. "
+            "A failed attempt is a grasp attempt near the needle that never held it or lost it before a 5 mm lift, a "
+            "retry an attempt after a failed one (datasets/attempts.py); successful demos may contain both. The human "
+            "demos come from simulated operators (a motor-control model), not from people.\n\n"
+            + metrics_table_markdown(rows, DEMO_COLUMNS)
+            + "\nPer demo: median [quartiles], range (steps and path over successful demos; counts over all demos).\n\n"
+            + demo_distributions_markdown(rows))

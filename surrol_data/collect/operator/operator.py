@@ -14,8 +14,11 @@ scene's exact numbers:
 * **buttons**: button 1 to close the jaw on the object; button 2 (clutch) to re-centre the hand when the next
   move would run into the edge of the stylus' workspace — experts re-position before a long move, novices
   when they hit the edge;
-* **recover**: when the object does not come along as the tool lifts or pulls (``info["grasped"]`` is false), open,
-  back off, re-approach the object where it now lies, and grasp again; give up after a few failures;
+* **slip** (:mod:`.slips`): a hurried grasp closes the jaw before the tool has settled on the grasp point; while
+  carrying, the finger on the jaw button may relax for a moment (the jaw opens and the object falls);
+* **recover**: when the object does not come along as the tool lifts or pulls, or falls from the jaw
+  (``info["grasped"]`` is false), open, back off, re-approach the object where it now lies, and grasp again; give up
+  after a few failures;
 * **place**: bringing a held object to where the plan lets go of it, judge it against its seat right beside it
   (finer perception, the task's tolerance, more corrections; on a one-object task turn the object, not the tool,
   until it looks aligned); after letting go on a one-hand task, watch it settle and, when the task's success does
@@ -41,6 +44,7 @@ from surrol_data.collect.devices.base import BUTTON_CLUTCH, BUTTON_JAW, Device, 
 from surrol_data.collect.mapping import MappingSettings, view_to_action
 from surrol_data.collect.operator.motor import MIN_JERK_PEAK_SPEED, POSE_DIM, Hand, fitts_duration
 from surrol_data.collect.operator.profiles import OperatorParams, identity_seed, operator_params
+from surrol_data.collect.operator.slips import Slips
 from surrol_data.collect.operator.views import task_view
 from surrol_data.envs.physics import JAW_OPEN_RAD
 from surrol_data.envs.psm_env import wrap_angle
@@ -69,6 +73,7 @@ _PLACING_ACCURACY = 0.5
 _PLACING_CORRECTIONS = 2
 # After letting go the person watches the object settle this many reaction times before judging the placement.
 _PLACEMENT_LOOK_REACTIONS = 2.0
+_SLIPS_SALT = 41   # the episode's generator for slips (slips.py) is its own, so the movements draw as before
 
 
 @dataclass
@@ -192,7 +197,7 @@ class SimulatedOperator(Device):
     @property
     def events(self) -> tuple[tuple[float, str], ...]:
         """What the operator did this episode, as (seconds since the episode began, event): ``clutch``, ``hesitate``, ``close``,
-        ``open``, ``grasp-failed``, ``placement-failed``, ``gave-up``, ``done``."""
+        ``open``, ``grip-lapse``, ``grasp-failed``, ``placement-failed``, ``gave-up``, ``done``."""
         return tuple(self._events)
 
     def observe(self, obs: dict, info: dict) -> None:
@@ -218,12 +223,13 @@ class SimulatedOperator(Device):
         t = self._step * self._period
         self._step += 1
         self._clock = self._episode_start + self._step * self._period
+        self._maybe_lapse(t)
         self._monitor_grasp(t)
         if t >= self._next_decision_s:
             self._decide(t)
         pose = self._hand.sample(t)
         buttons = 0
-        if self._jaw_button_at(t):
+        if self._jaw_button_at(t) and not self._lapse_from <= t < self._lapse_until:
             buttons |= BUTTON_JAW
         if self._clutch_from <= t < self._clutch_until:
             buttons |= BUTTON_CLUTCH
@@ -234,8 +240,10 @@ class SimulatedOperator(Device):
     # ------------------------------------------------------------------ episode set-up
     def _begin_episode(self, obs: dict, plan: list[dict], salt: tuple[int, ...] = ()) -> None:
         # (The arm too: the two hands of one person on one episode move independently.)
-        self._rng = np.random.default_rng(np.random.SeedSequence([self.seed, self._identity, self.arm,
-                                                                  *episode_key(self.env), *salt]))
+        key = [self.seed, self._identity, self.arm, *episode_key(self.env), *salt]
+        self._rng = np.random.default_rng(np.random.SeedSequence(key))
+        self._slips = Slips(self.params, np.random.default_rng(np.random.SeedSequence([*key, _SLIPS_SALT])))
+        self._lapse_from = self._lapse_until = -np.inf
         p = self.params
         start = self._rng.normal(0.0, 1.0, POSE_DIM) * np.array([5.0, 5.0, 3.0, 0.05])   # where the hand rests
         self._episode_start, self._step = self._clock, 0
@@ -251,6 +259,7 @@ class SimulatedOperator(Device):
         self._hold_height = 0.0
         self._hold_tip = np.zeros(3)
         self._grasp_segment: tuple[int, int] | None = None
+        self._reanchor: tuple[int, int] | None = None   # a grasp segment to aim at the object again (after a failure)
         self._failures = 0
         self._placements_failed = 0
         self._placed_at: float | None = None   # when the jaw let go of the object at its seat (the last placement)
@@ -412,6 +421,8 @@ class SimulatedOperator(Device):
     def _decide(self, t: float) -> None:
         """Look at the scene and choose the next action; sets when to look again."""
         self._next_decision_s = t + self._period
+        if self._reanchor is not None:
+            self._aim_at_object_again()
         while not self._idle:
             waits_on = self._team or self._gate
             if waits_on is not None and not waits_on.may_start(self, self._index):
@@ -441,7 +452,8 @@ class SimulatedOperator(Device):
                 self._move(t, goal, err, yaw_err)
                 return
             if goal.jaw_closed != self._jaw_closed:
-                if self._hand.busy_until() > t:        # let the tool come to rest before using the jaw
+                # Let the tool come to rest before using the jaw (a hurried grasp does not: slips.py).
+                if self._hand.busy_until() > t and not (goal.jaw_closed and self._hurried(self._index - 1)):
                     self._next_decision_s = self._hand.busy_until() + 0.5 * self._period
                     return
                 if goal.jaw_closed and self._prepare_hand_for_next(t):
@@ -453,10 +465,59 @@ class SimulatedOperator(Device):
     def _aim(self, goal: _Subgoal) -> tuple[float, float, int]:
         """When the person is satisfied with a step: (position error mm, angle error rad, corrections allowed)."""
         p = self.params
+        if self._hurried(self._index):
+            # A hurried grasp: the approach looks good enough sooner, after one correction at most (slips.py).
+            slack = p.early_close_slack
+            return slack * max(goal.tol_mm, p.accuracy_mm), slack * max(goal.yaw_tol, p.yaw_accuracy_rad), 1
         if goal.placing:
             return (max(goal.tol_mm, _PLACING_ACCURACY * p.accuracy_mm),
                     max(goal.yaw_tol, _PLACING_ACCURACY * p.yaw_accuracy_rad), _PLACING_CORRECTIONS * p.max_corrections)
         return max(goal.tol_mm, p.accuracy_mm), max(goal.yaw_tol, p.yaw_accuracy_rad), p.max_corrections
+
+    def _aim_at_object_again(self) -> None:
+        """After a failed grasp or a drop: the grasp's steps follow the object to where it lies now."""
+        start, close = self._reanchor
+        self._reanchor = None
+        state = np.asarray(self._obs["observation"], np.float64)
+        point, yaw = state[_OBJECT_POINT], float(state[_OBJECT_YAW])
+        # Indices stay those of the task's plan (the other hand of a bimanual task keeps to them too).
+        self._plan[start:close + 1] = [g.moved_with_object(point, yaw) for g in self._plan[start:close + 1]]
+
+    def _hurried(self, index: int) -> bool:
+        """Step ``index`` approaches a grasp (the next step closes the jaw) and this attempt at it is hurried."""
+        plan = self._plan
+        if not (0 <= index < len(plan) - 1 and plan[index + 1].jaw_closed and not plan[index].jaw_closed):
+            return False
+        # Only a grasp made alone: a hand taking an object over from the other hand (two hands of one person, or an
+        # arm beside a policy's) waits on it and is not hurried. (BiPegTransfer's expert, hurried at the hand-over
+        # as well, succeeded in 6 of 10 episodes instead of 9.)
+        if self._team is not None or self._gate is not None:
+            return False
+        return self._slips.hurried((index, self._failures, self._takeovers))
+
+    def _maybe_lapse(self, t: float) -> None:
+        """While carrying a held object (the hand moving it), the grip on the jaw button may lapse (slips.py)."""
+        if t < self._lapse_until:
+            return
+        if self._lapse_until > -np.inf:
+            # The lapse is over: the finger presses again, unless the person saw the object fall meanwhile.
+            self._lapse_from = self._lapse_until = -np.inf
+            if not self._info.get("grasped", True):
+                self._jaw_closed, self._jaw_change_s = False, -np.inf
+            return
+        if not (self._holding and self._jaw_closed and not self._idle):
+            return
+        if self._hand.busy_until() <= t or self._info.get("is_success", 0.0):
+            return
+        # Only where the plan places nothing (NeedlePick: lift and carry): a peg or block that falls lands
+        # on its side, which this operator cannot pick up again, so on the placing tasks a lapse ended the episode
+        # (PegBoard's novice succeeded in 2 of 10 episodes instead of 10).
+        if any(g.placing for g in self._plan):
+            return
+        duration = self._slips.lapse(self._period)
+        if duration > 0.0:
+            self._lapse_from, self._lapse_until = t, t + duration
+            self._events.append((t, "grip-lapse"))
 
     def _advance(self) -> None:
         self._index += 1
@@ -675,8 +736,11 @@ class SimulatedOperator(Device):
         delay = self._reaction()
         self._hand.halt(t + delay)
         self._holding = False
+        # (A button already released, in or after a lapse of the grip, stays released.)
+        pressed = self._jaw_button_at(t) and not self._lapse_from <= t < self._lapse_until
+        self._jaw_change_s = t + delay if pressed else -np.inf
         self._jaw_closed = False
-        self._jaw_change_s = t + delay
+        self._lapse_from = self._lapse_until = -np.inf
         self._jaw_wait_last = None
         self._events.append((t + delay, "open"))
         if self._failures >= p.max_grasp_attempts:
@@ -685,10 +749,10 @@ class SimulatedOperator(Device):
         # The failure showed the person their height misjudgement: most of it is corrected for the retry.
         self._depth_bias *= p.depth_learning
         state = np.asarray(self._obs["observation"], np.float64)
-        point, yaw = state[_OBJECT_POINT], float(state[_OBJECT_YAW])
         start, close = self._grasp_segment
-        # Indices stay those of the task's plan (the other hand of a bimanual task keeps to them too).
-        self._plan[start:close + 1] = [g.moved_with_object(point, yaw) for g in self._plan[start:close + 1]]
+        # The grasp is aimed again at the object where it lies once the person looks again, after backing off: an
+        # object that fell from the jaw is still falling when the person sees it go.
+        self._reanchor = (start, close)
         self._index = start
         self._corrections = 0
         self._fresh = True

@@ -59,6 +59,11 @@ class OperatorParams:
     jaw_wait_s: float               # time watching the jaw close before lifting
     backoff_mm: float               # retreat after a failed grasp
     max_grasp_attempts: int         # give up after this many failed grasps
+    # slips (collect/operator/slips.py); drawn apart from the rest, so adding them changed no one's other values
+    early_close_probability: float = 0.0   # chance that a grasp attempt is hurried: the jaw closed while settling
+    early_close_slack: float = 1.0         # ... once the tool looks within this many times the usual accuracy
+    grip_lapse_per_s: float = 0.0          # hazard of the finger relaxing on the jaw button while carrying
+    grip_lapse_s: float = 0.5              # mean length of such a lapse
 
     def motor_noise(self) -> MotorNoise:
         return MotorNoise(endpoint_sd=self.endpoint_sd, drift_sd=self.drift_sd, tremor_mm=self.tremor_mm,
@@ -76,7 +81,8 @@ PROFILES: dict[str, OperatorParams] = {
         depth_bias_mm=0.1, depth_bias_spread_mm=0.2, depth_learning=0.3, internal_gain=1.0, internal_gain_spread=0.03,
         frame_rotation_deg=0.0, frame_rotation_spread_deg=5.0,
         accuracy_mm=0.6, yaw_accuracy_rad=0.08, max_corrections=3, hesitation_probability=0.1, hesitation_mean_s=0.3,
-        clutch_margin_mm=8.0, anticipates_clutch=True, jaw_wait_s=0.5, backoff_mm=6.0, max_grasp_attempts=4),
+        clutch_margin_mm=8.0, anticipates_clutch=True, jaw_wait_s=0.5, backoff_mm=6.0, max_grasp_attempts=4,
+        early_close_probability=0.3, early_close_slack=3.0, grip_lapse_per_s=0.03, grip_lapse_s=0.5),
     "novice": OperatorParams(
         skill="novice", reaction_time_s=0.35, reaction_jitter=0.25, fitts_intercept_s=0.35, fitts_slope_s_per_bit=0.2,
         speed_fraction=0.72, endpoint_sd=0.12, drift_sd=0.06, tremor_mm=0.2, tremor_hz=9.0, tremor_gimbal_rad=0.006,
@@ -84,7 +90,8 @@ PROFILES: dict[str, OperatorParams] = {
         depth_bias_mm=1.3, depth_bias_spread_mm=0.5, depth_learning=0.5, internal_gain=1.0, internal_gain_spread=0.15,
         frame_rotation_deg=0.0, frame_rotation_spread_deg=10.0,
         accuracy_mm=1.0, yaw_accuracy_rad=0.15, max_corrections=4, hesitation_probability=0.4, hesitation_mean_s=0.6,
-        clutch_margin_mm=4.0, anticipates_clutch=False, jaw_wait_s=0.8, backoff_mm=10.0, max_grasp_attempts=4),
+        clutch_margin_mm=4.0, anticipates_clutch=False, jaw_wait_s=0.8, backoff_mm=10.0, max_grasp_attempts=4,
+        early_close_probability=0.3, early_close_slack=4.0, grip_lapse_per_s=0.05, grip_lapse_s=0.6),
 }
 
 # Matched profiles (issue 15): the paper's demo sources were matched "for fairness" — mean completion 113 steps
@@ -96,22 +103,29 @@ PROFILES: dict[str, OperatorParams] = {
 # novice with a path near the paper novices' (a better-aligned felt frame and gain, less endpoint scatter and
 # perception noise, the expert's accuracy reached with more corrections, a smaller height misjudgement, a shorter
 # back-off, a slower pace). Skill still shows where the paper's non-experts differed: tremor, hesitation (idle),
-# the height misjudgement behind failed grasps and recoveries, reactive clutching, reaction and Fitts timing.
-# Calibrated with ``benchmarks/demo_sources.py`` (100 episodes per source, 4 operators × 25).
+# the height misjudgement behind failed grasps and recoveries, reactive clutching, reaction and Fitts timing, and
+# the slips (slips.py): the matched novice hurries twice as many grasps as the matched expert and accepts a looser
+# approach, so fails more than twice as many attempts; both lapse less per second than at their own pace (the slow,
+# deliberate carry of the matched pace would otherwise multiply the expert's drops), the novice still 3× the expert.
+# Calibrated with ``benchmarks/demo_sources.py`` (100 episodes per source, 4 operators × 25) and
+# ``benchmarks/operator_profiles.py --matched``.
 MATCHED_PROFILES: dict[str, OperatorParams] = {
     "expert_matched": dataclasses.replace(
         PROFILES["expert"], speed_fraction=0.34, fitts_intercept_s=0.3, jaw_wait_s=1.0, frame_rotation_spread_deg=2.0,
-        clutch_margin_mm=3.0),
+        clutch_margin_mm=3.0, early_close_probability=0.2, grip_lapse_per_s=0.012),
     "novice_matched": dataclasses.replace(
-        PROFILES["novice"], frame_rotation_spread_deg=2.0, internal_gain_spread=0.04, endpoint_sd=0.06, drift_sd=0.03,
-        weber_fraction=0.04, lateral_noise_mm=0.3, depth_noise_mm=0.5, accuracy_mm=0.6, max_corrections=6,
-        speed_fraction=0.6, depth_bias_mm=0.9, backoff_mm=6.0),
+        PROFILES["novice"], frame_rotation_spread_deg=2.0, internal_gain_spread=0.04, endpoint_sd=0.05, drift_sd=0.03,
+        weber_fraction=0.03, lateral_noise_mm=0.25, depth_noise_mm=0.5, accuracy_mm=0.6, max_corrections=6,
+        speed_fraction=0.52, depth_bias_mm=0.9, backoff_mm=4.0, early_close_probability=0.6, early_close_slack=5.0,
+        grip_lapse_per_s=0.035),
 }
 ALL_PROFILES: dict[str, OperatorParams] = {**PROFILES, **MATCHED_PROFILES}
 
 # Between-operator spread of the positive continuous parameters: each is multiplied by exp(N(0, IDENTITY_SPREAD)).
 IDENTITY_SPREAD = 0.15
-_FIXED = {"skill", "anticipates_clutch", "max_corrections", "max_grasp_attempts", "depth_bias_mm",
+_SLIPS = ("early_close_probability", "early_close_slack", "grip_lapse_per_s", "grip_lapse_s")
+_SLIP_SALT = 41
+_FIXED = {*_SLIPS, "skill", "anticipates_clutch", "max_corrections", "max_grasp_attempts", "depth_bias_mm",
           "depth_bias_spread_mm", "internal_gain", "internal_gain_spread", "tremor_hz", "frame_rotation_deg",
           "frame_rotation_spread_deg"}
 
@@ -144,6 +158,11 @@ def operator_params(skill: str, operator_id: str, overrides: dict | None = None)
     drawn["depth_bias_mm"] = float(base.depth_bias_mm + rng.normal(0.0, base.depth_bias_spread_mm))
     drawn["frame_rotation_deg"] = float(base.frame_rotation_deg + rng.normal(0.0, base.frame_rotation_spread_deg))
     drawn["internal_gain"] = float(max(base.internal_gain + rng.normal(0.0, base.internal_gain_spread), 0.5))
+    # The slips come from a generator of their own: the other values of a person are those drawn before slips existed.
+    slips = np.random.default_rng([identity_seed(base.skill, str(operator_id)), _SLIP_SALT])
+    for name in _SLIPS:
+        drawn[name] = float(getattr(base, name) * np.exp(slips.normal(0.0, IDENTITY_SPREAD)))
+    drawn["early_close_probability"] = min(drawn["early_close_probability"], 1.0)
     params = dataclasses.replace(base, **drawn)
     if overrides:
         known = {f.name for f in dataclasses.fields(OperatorParams)} - {"skill"}
