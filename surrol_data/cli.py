@@ -454,16 +454,12 @@ def gui(out: Path = typer.Option(Path("gui_sessions"), help="Folder for the sess
         require("panda3d")
     except MissingExtra as e:
         _fail(f"the GUI: {e}")
-    from surrol_data.render.display import no_window_here
-
-    refusal = no_window_here(offscreen, runs_alone=autoplay is not None)   # said before the slow imports
-    if refusal is not None:
-        _fail(refusal)
     from surrol_data.collect.haptic_source import SKILLS
     from surrol_data.envs import TASKS
     from surrol_data.gui.app import DEVICES
-    from surrol_data.render.display import RendererUnavailable, in_words_of
+    from surrol_data.render.display import RendererUnavailable, in_words_of, no_window_here
 
+    # The options first (a wrong one is wrong on any machine), then whether a window can open here.
     if task is not None and task not in TASKS:
         _fail(f"unknown task {task!r}; known tasks: {', '.join(TASKS)}")
     if device not in DEVICES:
@@ -472,6 +468,9 @@ def gui(out: Path = typer.Option(Path("gui_sessions"), help="Folder for the sess
         _fail(f"--skill must be one of {', '.join(SKILLS)}, got {skill!r}")
     if autoplay is not None and task is None:
         _fail("--autoplay needs --task")
+    refusal = no_window_here(offscreen, runs_alone=autoplay is not None)
+    if refusal is not None:
+        _fail(refusal)
     from surrol_data.gui.app import TrainingApp
 
     acting, policy_info = _supervised_policy(policy)

@@ -1,5 +1,6 @@
 """Test-session environment: datasets are local, and the Hugging Face caches stay out of the user's home."""
 
+import logging
 import os
 import sys
 import tempfile
@@ -44,3 +45,23 @@ def _no_window_task_outlives_its_test():
 
         for name in _WINDOW_TASKS:
             taskMgr.remove(name)
+
+
+def _handlers() -> dict[str, list]:
+    loggers = [logging.getLogger(), *(lg for lg in logging.Logger.manager.loggerDict.values()
+                                      if isinstance(lg, logging.Logger))]
+    return {lg.name: list(lg.handlers) for lg in loggers}
+
+
+@pytest.fixture(autouse=True)
+def _no_logging_handler_outlives_its_test():
+    """A handler that code run in-process attached during a test (`logging.basicConfig` in a command's CLI, a library's
+    own logging set-up) writes to that test's captured stream, which pytest closes afterwards: every later record of
+    that logger, in any test, would then print a 'Logging error' traceback into that test's output."""
+    before = _handlers()
+    yield
+    for name, handlers in _handlers().items():
+        for handler in handlers:
+            if handler not in before.get(name, ()) and not type(handler).__module__.startswith("_pytest"):
+                logger = logging.getLogger(name) if name != "root" else logging.getLogger()
+                logger.removeHandler(handler)

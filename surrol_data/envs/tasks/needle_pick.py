@@ -18,9 +18,6 @@ class NeedlePick(NeedleTaskBase):
     ORACLE_GAIN = 0.4
     GRASP_DEPTH_M = 0.0002   # tip this far below the wire centre line: blades straddle the wire, clear of the pad
     LIFT_M = 0.005           # the weld forms once the squeezing jaws have lifted the needle this much (reference)
-    # The lifted needle, clear of the pad, is carried without its weld and the arm moved in closed form (grasp.py,
-    # 6. Carry; free_motion.py): a learned policy holds it at the goal for most of an episode.
-    KINEMATIC_CARRY = True
 
     def grasp_lift_condition(self) -> bool:
         return self.achieved_goal()[2] > self.object_start_z + self.LIFT_M
