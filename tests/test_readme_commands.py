@@ -32,8 +32,9 @@ _OUTPUTS = itertools.count()
 
 
 # The docs pages whose commands run after the README's, in this order (later pages use what earlier ones made).
-DOC_PAGES = ("index.md", "envs.md", "physics.md", "teleoperation.md", "datasets.md", "training.md", "interventions.md",
-             "evaluation.md", "rendering.md", "benchmarks.md", "architecture.md", "api.md")
+DOC_PAGES = ("index.md", "quickstart.md", "envs.md", "physics.md", "teleoperation.md", "web_console.md", "datasets.md",
+             "training.md", "interventions.md", "evaluation.md", "rendering.md", "benchmarks.md", "architecture.md",
+             "api.md")
 # Where a command may write: git-ignored folders, the study's results, the user's home. Never the repository root.
 OUTPUT_ROOTS = ("outputs/", "datasets/", "runs/", "docs/results/", "~/")
 
@@ -73,6 +74,8 @@ def adapt(command: str, home: Path) -> list[str] | None:
     """A README or docs command with small sizes and placeholders filled; None if it cannot run here."""
     args = shlex.split(command.replace("~", str(home)))
     if "hydra/launcher=slurm" in args or "slurm" in args:   # tests/test_slurm.py runs these on a local SLURM
+        return None
+    if args[1] == "serve":   # the web console serves until stopped: tests/test_web_console.py runs it
         return None
     if any(a.startswith("lerobot:") for a in args):   # needs lerobot-train's output first: tests/test_lerobot_train.py
         return None
