@@ -351,9 +351,15 @@ class DatasetWriter:
             self._lock.acquire()
             self._exists = True
             self._created = True
-        self._prepare_writer()
-        self._durable = self._ds.meta.total_episodes
-        self._start_session(checkpoint=True)
+        try:
+            self._prepare_writer()
+            self._durable = self._ds.meta.total_episodes
+            self._start_session(checkpoint=True)
+        except BaseException:   # e.g. a full disk: the dataset is left for the next command (its repair), not
+            self._lock.release()  # locked by this process until its recorder object happens to be collected
+            self._restore_signal_handlers()
+            self._open = False
+            raise
 
     def _open_lazily(self) -> None:
         """Open a new state-only dataset without lerobot: its import (~5 s, torch included) would come before the
