@@ -256,7 +256,10 @@ def _compare_profiles(env, operators: int, episodes: int):
 
 def test_expert_and_novice_differ_on_needle_pick(pick_env):
     oracle, expert, novice, _, ok = _compare_profiles(pick_env, operators=1, episodes=3)
-    assert sum(s.success for s in expert) == 3 and sum(s.success for s in novice) >= 2
+    # The novice now errs as people do (hurried grasps, lapses of the grip; ~0.35 failed grasps an episode at its own
+    # pace): 3 episodes cannot pin its success rate, which the slow test below (≥ 60 % of 30) and
+    # benchmarks/operator_tasks.py (NeedlePick novice 8 of 10) measure. Here it must succeed at all, to be compared.
+    assert sum(s.success for s in expert) == 3 and sum(s.success for s in novice) >= 1
     assert ok(expert, "steps_to_success").mean() < ok(novice, "steps_to_success").mean()
     assert ok(expert, "log_dimensionless_jerk").mean() > ok(novice, "log_dimensionless_jerk").mean()
     assert ok(oracle, "steps_to_success").mean() < ok(expert, "steps_to_success").mean()
