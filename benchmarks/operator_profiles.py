@@ -1,9 +1,11 @@
 """Simulated operators against the script oracle on NeedlePick, and the errors they make beside people's.
 
-Usage: ``uv run python benchmarks/operator_profiles.py [--identities 4] [--episodes 25] [--horizon 150]``
+Usage: ``uv run python benchmarks/operator_profiles.py [--identities 4] [--episodes 25] [--horizon 300]``
 
-Each profile (expert, novice) runs ``identities`` operators × ``episodes`` seeded 150-step attempts (the paper's
-human recording length) through the real device mapping into the env; the oracle runs the same seeds. Two tables:
+Each profile (expert, novice) runs ``identities`` operators × ``episodes`` seeded attempts of up to 300 steps (twice
+the paper's 150-step human recordings: the literature's times and paths are of finished tasks, and a horizon that cut
+the slow novices' attempts short would keep only their quickest, shortest ones) through the real device mapping into
+the env; the oracle runs the same seeds. Two tables:
 
 * **skill**: success, steps to success, path (means ± sd over the successful attempts), smoothness, clutch uses;
 * **calibration**: per attempt, novice and expert beside published human data from robotic surgical simulators,
@@ -12,9 +14,9 @@ human recording length) through the real device mapping into the env; the oracle
 
   - *failed grasps*: jaw closures that never held the needle (``datasets/metrics.failed_grasps``);
   - *drops*: holds of the needle lost before the task succeeded, whatever the jaw did (a lapse of the grip opens it);
-  - *collisions*: onsets of the tool pressing on the tray or its pad with more than :data:`COLLISION_FORCE_N` (the
-    grasp presses the open jaw gently onto the pad; a harder push is what the simulators score as excessive force or a
-    collision);
+  - *collisions*: onsets of the tool's contact with the tray or its pad made descending faster than
+    :data:`STRIKE_SPEED_MM_S` (a strike; a grasp settles the open jaw onto the pad at the end of a movement, slower
+    than that), or pressing with more than :data:`COLLISION_FORCE_N` (which the arm's force limits keep it under);
   - *out of view*: onsets of the tool tip leaving the endoscope image;
   - *idle*: seconds in idle stretches (``datasets/metrics.idle_time_s``).
 
@@ -34,6 +36,7 @@ from rich.progress import Progress
 from rich.table import Table
 
 import surrol_data.envs  # noqa: F401  (registers the ids)
+from surrol_data.collect.haptic_source import control_period_s as task_period_s
 from surrol_data.collect.mapping import ActionMapper, MappingSettings, view_to_action
 from surrol_data.collect.operator import SimulatedOperator
 from surrol_data.datasets.metrics import trajectory_proficiency
@@ -44,6 +47,10 @@ from surrol_data.evaluation.rollout import ORACLE, rollout
 
 FIRST_SEED = 1000
 COLLISION_FORCE_N = 3.0
+# A contact with the tray made at more than this descent speed is a strike, not a grasp settling onto the pad: the
+# simulated operators' grasps land at ≤ 5 mm/s (≤ 1 mm a step), an overshooting descent at 8–28 mm/s.
+STRIKE_SPEED_MM_S = 7.5
+BOOTSTRAP_RESAMPLES = 4000
 
 
 @dataclass(frozen=True)
@@ -98,16 +105,21 @@ def operator_episode(env, operator: SimulatedOperator, seed: int, horizon: int) 
     cid = task.client._client
     tray = _tray_bodies(task)
     builder = TrajectoryBuilder(obs, info["tip_position"], info["jaw_angle"])
-    pressing, outside, held, success = [], [], [], []
+    colliding, outside, held, success = [], [], [], []
+    touching_before, tip_before = False, np.asarray(obs["observation"][:3], np.float64)
+    period_s = task_period_s(task)
     for _ in range(horizon):
         operator.observe(obs, info)
         step = mapper(operator.read(), view_to_action(task))
         obs, reward, terminated, truncated, info = env.step(step.arm)
         builder.add(step.arm, obs, reward, info["is_success"], terminated, info["tip_position"], info["jaw_angle"],
                     flags={"clutch": step.clutch, "jaw_button": step.jaw_button}, info=info)
-        force = max((c[9] for b in tray for c in pb.getContactPoints(task.psm.body, b, physicsClientId=cid)),
-                    default=0.0)
-        pressing.append(force > COLLISION_FORCE_N)
+        forces = [c[9] for b in tray for c in pb.getContactPoints(task.psm.body, b, physicsClientId=cid)]
+        tip = np.asarray(obs["observation"][:3], np.float64)
+        descent_mm_s = (tip_before[2] - tip[2]) * 1000.0 / period_s
+        struck = bool(forces) and not touching_before and descent_mm_s > STRIKE_SPEED_MM_S
+        colliding.append(struck or max(forces, default=0.0) > COLLISION_FORCE_N)
+        touching_before, tip_before = bool(forces), tip
         x, y, depth = project(camera_axes(task.endoscope_pose()), obs["observation"][:3])
         outside.append(not (abs(x) <= 1.0 and abs(y) <= 1.0 and depth > 0))
         held.append(bool(info["grasped"]))
@@ -118,7 +130,25 @@ def operator_episode(env, operator: SimulatedOperator, seed: int, horizon: int) 
     done = np.maximum.accumulate(np.asarray(success, bool))
     h = np.asarray(held, bool)
     drops = int(np.sum(h[:-1] & ~h[1:] & ~done[1:]))
-    return {"score": score, "collisions": _onsets(pressing), "out_of_view": _onsets(outside), "drops": drops}
+    return {"score": score, "collisions": _onsets(colliding), "out_of_view": _onsets(outside), "drops": drops}
+
+
+def run_profiles(identities: int, episodes: int, horizon: int, suffix: str = "",
+                 advance=lambda: None) -> dict[str, list[dict]]:
+    """Per skill (``expert``, ``novice``; ``suffix`` "_matched" for the study's profiles): ``identities`` operators ×
+    ``episodes`` attempts each, operator ``i``'s on seeds ``FIRST_SEED + i * episodes`` on."""
+    env = gym.make("SurRoL/NeedlePick-v0", max_episode_steps=horizon)
+    runs: dict[str, list[dict]] = {}
+    for skill in ("expert", "novice"):
+        runs[skill] = []
+        for i in range(identities):
+            op = SimulatedOperator(env.unwrapped, skill + suffix, f"{skill}-{i}", MappingSettings(), 0)
+            op.connect()
+            for k in range(episodes):
+                runs[skill].append(operator_episode(env, op, FIRST_SEED + i * episodes + k, horizon))
+                advance()
+    env.close()
+    return runs
 
 
 def summarise(name: str, scores: list) -> list[str]:
@@ -133,26 +163,49 @@ def summarise(name: str, scores: list) -> list[str]:
             f"{np.mean([s.clutch_uses for s in scores]):.1f}"]
 
 
-def calibration(runs: dict[str, list[dict]]) -> list[dict]:
-    """Per metric: ours for novice and expert, their ratio, and the literature's."""
-    def ours(skill: str, metric: str) -> float:
-        eps = runs[skill]
-        if metric in ("time", "path"):
-            field = "time_to_success_s" if metric == "time" else "path_length_cm"
-            return float(np.mean([getattr(e["score"], field) for e in eps if e["score"].success]))
-        if metric in ("failed_grasps", "idle"):
-            field = "failed_grasps" if metric == "failed_grasps" else "idle_time_s"
-            return float(np.mean([getattr(e["score"], field) for e in eps]))
-        return float(np.mean([e[metric] for e in eps]))
+def _values(episodes: list[dict], metric: str) -> np.ndarray:
+    """One value per attempt (time and path: per successful attempt)."""
+    if metric in ("time", "path"):
+        field = "time_to_success_s" if metric == "time" else "path_length_cm"
+        return np.array([getattr(e["score"], field) for e in episodes if e["score"].success], np.float64)
+    if metric in ("failed_grasps", "idle"):
+        field = "failed_grasps" if metric == "failed_grasps" else "idle_time_s"
+        return np.array([getattr(e["score"], field) for e in episodes], np.float64)
+    return np.array([e[metric] for e in episodes], np.float64)
 
+
+def _ratio(novice: float, expert: float) -> float:
+    return novice / expert if expert > 0 else (np.inf if novice > 0 else float("nan"))
+
+
+def ratio_interval(novice: np.ndarray, expert: np.ndarray, resamples: int = BOOTSTRAP_RESAMPLES) -> tuple[float, float]:
+    """The 95 % bootstrap interval of mean(novice) / mean(expert), the attempts of each skill resampled apart: the
+    error counts are a few dozen events per hundred attempts, so their ratio is uncertain by tens of per cent."""
+    rng = np.random.default_rng(0)
+    n = rng.choice(novice, (resamples, len(novice))).mean(1)
+    e = rng.choice(expert, (resamples, len(expert))).mean(1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.where(e > 0, n / np.where(e > 0, e, 1.0), np.inf)
+    return float(np.quantile(r, 0.025)), float(np.quantile(r, 0.975))
+
+
+def calibration(runs: dict[str, list[dict]]) -> list[dict]:
+    """Per metric: ours for novice and expert, their ratio with its 95 % interval, and the literature's."""
     rows = []
     units = {"time": "s", "path": "cm", "idle": "s"}
     for metric, lit in LITERATURE.items():
-        novice, expert = ours("novice", metric), ours("expert", metric)
-        ratio = novice / expert if expert > 0 else (np.inf if novice > 0 else float("nan"))
-        within = "n/a" if lit.ratio is None else ("yes" if lit.ratio[0] <= ratio <= lit.ratio[1] else "no")
+        nv, ev = _values(runs["novice"], metric), _values(runs["expert"], metric)
+        novice, expert = float(nv.mean()), float(ev.mean())
+        ratio = _ratio(novice, expert)
+        low, high = ratio_interval(nv, ev) if expert > 0 else (float("nan"), float("nan"))
+        if lit.ratio is None:
+            within = "n/a"
+        elif lit.ratio[0] <= ratio <= lit.ratio[1]:
+            within = "yes"
+        else:
+            within = "interval overlaps" if low <= lit.ratio[1] and high >= lit.ratio[0] else "no"
         rows.append({"metric": metric, "unit": units.get(metric, "/ attempt"), "novice": novice, "expert": expert,
-                     "ratio": ratio, "lit": lit, "within": within})
+                     "ratio": ratio, "interval": (low, high), "lit": lit, "within": within})
     return rows
 
 
@@ -160,32 +213,23 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--identities", type=int, default=4)
     parser.add_argument("--episodes", type=int, default=25, help="attempts per identity")
-    parser.add_argument("--horizon", type=int, default=150)
+    parser.add_argument("--horizon", type=int, default=300)
     parser.add_argument("--matched", action="store_true",
                         help="the matched profiles (expert_matched, novice_matched: the study's demo sources)")
     args = parser.parse_args()
     suffix = "_matched" if args.matched else ""
-    env = gym.make("SurRoL/NeedlePick-v0", max_episode_steps=args.horizon)
     n = args.identities * args.episodes
-    seeds = range(FIRST_SEED, FIRST_SEED + n)
-    runs: dict[str, list[dict]] = {}
     with Progress(transient=True) as progress:
         bar = progress.add_task("episodes", total=3 * n)
         oracle = []
-        for s in seeds:
+        env = gym.make("SurRoL/NeedlePick-v0", max_episode_steps=args.horizon)
+        for s in range(FIRST_SEED, FIRST_SEED + n):
             oracle.append(trajectory_proficiency(rollout(env, ORACLE, s)))
             progress.advance(bar)
-        rows = [summarise("script oracle", oracle)]
-        for skill in ("expert", "novice"):
-            runs[skill] = []
-            for i in range(args.identities):
-                op = SimulatedOperator(env.unwrapped, skill + suffix, f"{skill}-{i}", MappingSettings(), 0)
-                op.connect()
-                for k in range(args.episodes):
-                    runs[skill].append(operator_episode(env, op, FIRST_SEED + i * args.episodes + k, args.horizon))
-                    progress.advance(bar)
-            rows.append(summarise(skill + suffix, [e["score"] for e in runs[skill]]))
-    env.close()
+        env.close()
+        runs = run_profiles(args.identities, args.episodes, args.horizon, suffix, lambda: progress.advance(bar))
+    rows = [summarise("script oracle", oracle)] + [summarise(skill + suffix, [e["score"] for e in runs[skill]])
+                                                   for skill in ("expert", "novice")]
     console = Console(width=200)
     table = Table(title=f"simulated operators on NeedlePick ({args.horizon}-step attempts, {args.identities} "
                         f"identities × {args.episodes} episodes per profile)")
@@ -195,12 +239,14 @@ def main() -> None:
         table.add_row(*row)
     console.print(table)
     calib = Table(title=f"errors and effort beside people's ({n} attempts per skill; time and path over successes)")
-    for col in ("metric", "novice", "expert", "ratio", "literature: novice", "expert", "ratio range", "within",
-                "source"):
+    for col in ("metric", "novice", "expert", "ratio", "95 % interval", "literature: novice", "expert", "ratio range",
+                "within", "source"):
         calib.add_column(col)
     for r in calibration(runs):
         lit = r["lit"]
+        low, high = r["interval"]
         calib.add_row(f"{r['metric']} ({r['unit']})", f"{r['novice']:.2f}", f"{r['expert']:.2f}", f"{r['ratio']:.2f}",
+                      "—" if np.isnan(low) else f"{low:.2f}–{high:.2f}",
                       lit.novice, lit.expert, "—" if lit.ratio is None else f"{lit.ratio[0]:g}–{lit.ratio[1]:g}",
                       r["within"], lit.source)
     console.print(calib)

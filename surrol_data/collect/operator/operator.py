@@ -197,7 +197,7 @@ class SimulatedOperator(Device):
     @property
     def events(self) -> tuple[tuple[float, str], ...]:
         """What the operator did this episode, as (seconds since the episode began, event): ``clutch``, ``hesitate``, ``close``,
-        ``open``, ``grip-lapse``, ``grasp-failed``, ``placement-failed``, ``gave-up``, ``done``."""
+        ``open``, ``overshoot``, ``grip-lapse``, ``grasp-failed``, ``placement-failed``, ``gave-up``, ``done``."""
         return tuple(self._events)
 
     def observe(self, obs: dict, info: dict) -> None:
@@ -483,17 +483,22 @@ class SimulatedOperator(Device):
         # Indices stay those of the task's plan (the other hand of a bimanual task keeps to them too).
         self._plan[start:close + 1] = [g.moved_with_object(point, yaw) for g in self._plan[start:close + 1]]
 
-    def _hurried(self, index: int) -> bool:
-        """Step ``index`` approaches a grasp (the next step closes the jaw) and this attempt at it is hurried."""
+    def _alone_at_grasp(self, index: int) -> bool:
+        """Step ``index`` approaches a grasp (the next step closes the jaw) that this hand makes alone."""
         plan = self._plan
         if not (0 <= index < len(plan) - 1 and plan[index + 1].jaw_closed and not plan[index].jaw_closed):
             return False
-        # Only a grasp made alone: a hand taking an object over from the other hand (two hands of one person, or an
-        # arm beside a policy's) waits on it and is not hurried. (BiPegTransfer's expert, hurried at the hand-over
-        # as well, succeeded in 6 of 10 episodes instead of 9.)
-        if self._team is not None or self._gate is not None:
-            return False
-        return self._slips.hurried((index, self._failures, self._takeovers))
+        # Only a grasp made alone slips: a hand taking an object over from the other hand (two hands of one person,
+        # or an arm beside a policy's) waits on it. (BiPegTransfer's expert, hurried at the hand-over as well,
+        # succeeded in 6 of 10 episodes instead of 9.)
+        return self._team is None and self._gate is None
+
+    def _attempt_key(self, index: int) -> tuple:
+        return (index, self._failures, self._takeovers)
+
+    def _hurried(self, index: int) -> bool:
+        """Step ``index`` approaches a grasp made alone and this attempt at it is hurried."""
+        return self._alone_at_grasp(index) and self._slips.hurried(self._attempt_key(index))
 
     def _maybe_lapse(self, t: float) -> None:
         """While carrying a held object (the hand moving it), the grip on the jaw button may lapse (slips.py)."""
@@ -634,6 +639,12 @@ class SimulatedOperator(Device):
             accuracy = goal.yaw_tol
         if abs(yaw_err) < accuracy:
             yaw_err = 0.0
+        if self._corrections == 0 and self._alone_at_grasp(self._index):
+            # The first movement down to a grasp may go deeper than meant (slips.py): seen, and corrected, next look.
+            deeper = self._slips.overshoot_mm(self._attempt_key(self._index))
+            if deeper > 0.0:
+                err_mm = err_mm - [0.0, 0.0, deeper]
+                self._events.append((t, "overshoot"))
         hand = self._hand_motion_for(err_mm, yaw_err)
         now, room = self._hand.planned_pose(), self._room()
         end = now + hand
