@@ -52,13 +52,13 @@ def make_operator(env, skill: str, operator_id: str, seed: int = 0, **overrides)
     return op
 
 
-def profile_runs(env, skill: str, operators: int, episodes: int, first_seed: int):
+def profile_runs(env, skill: str, operators: int, episodes: int, first_seed: int, horizon: int = HORIZON):
     scores: list[Proficiency] = []
     events = []
     for i in range(operators):
         op = make_operator(env, skill, f"{skill}-{i}")
         for k in range(episodes):
-            traj, _ = run_episode(env, op, first_seed + i * episodes + k)
+            traj, _ = run_episode(env, op, first_seed + i * episodes + k, horizon)
             scores.append(trajectory_proficiency(traj))
             events.append([e for _, e in op.events])
     return scores, events
@@ -243,10 +243,10 @@ def test_clutch_at_the_workspace_edge(pick_env):
     assert all(frames[k].buttons & BUTTON_CLUTCH for k in np.flatnonzero(clutched))
 
 
-def _compare_profiles(env, operators: int, episodes: int):
+def _compare_profiles(env, operators: int, episodes: int, horizon: int = HORIZON):
     oracle = [trajectory_proficiency(rollout(env, ORACLE, s)) for s in range(1000, 1000 + operators * episodes)]
-    expert, expert_events = profile_runs(env, "expert", operators, episodes, 1000)
-    novice, novice_events = profile_runs(env, "novice", operators, episodes, 1000)
+    expert, expert_events = profile_runs(env, "expert", operators, episodes, 1000, horizon)
+    novice, novice_events = profile_runs(env, "novice", operators, episodes, 1000, horizon)
 
     def ok(scores, field):
         return np.array([getattr(s, field) for s in scores if s.success], np.float64)
@@ -256,9 +256,9 @@ def _compare_profiles(env, operators: int, episodes: int):
 
 def test_expert_and_novice_differ_on_needle_pick(pick_env):
     oracle, expert, novice, _, ok = _compare_profiles(pick_env, operators=1, episodes=3)
-    # The novice now errs as people do (hurried grasps, lapses of the grip; ~0.35 failed grasps an episode at its own
-    # pace): 3 episodes cannot pin its success rate, which the slow test below (≥ 60 % of 30) and
-    # benchmarks/operator_tasks.py (NeedlePick novice 8 of 10) measure. Here it must succeed at all, to be compared.
+    # The novice errs as people do (hurried grasps, a misjudged depth, lapses of the grip; ~0.7 failed grasps an attempt
+    # at its own pace): 3 episodes of 150 steps cannot pin its success rate, which the slow test below and
+    # benchmarks/operator_profiles.py (95 of 100 in 300 steps) measure. Here it must succeed at all, to be compared.
     assert sum(s.success for s in expert) == 3 and sum(s.success for s in novice) >= 1
     assert ok(expert, "steps_to_success").mean() < ok(novice, "steps_to_success").mean()
     assert ok(expert, "log_dimensionless_jerk").mean() > ok(novice, "log_dimensionless_jerk").mean()
@@ -266,10 +266,15 @@ def test_expert_and_novice_differ_on_needle_pick(pick_env):
 
 
 @pytest.mark.slow
-def test_expert_and_novice_targets_30_attempts(pick_env):
-    oracle, expert, novice, events, ok = _compare_profiles(pick_env, operators=3, episodes=10)
+def test_expert_and_novice_targets_30_attempts():
+    """Given the time to finish (300 steps, as benchmarks/operator_profiles.py gives them: 99 and 95 of 100 there),
+    both finish nearly every attempt; at the paper's 150 steps a novice who errs as people do finishes about two in
+    three (the rest run out of time after a failed grasp or a drop)."""
+    env = gym.make("SurRoL/NeedlePick-v0", max_episode_steps=300)
+    oracle, expert, novice, events, ok = _compare_profiles(env, operators=3, episodes=10, horizon=300)
+    env.close()
     assert np.mean([s.success for s in expert]) >= 0.9
-    assert np.mean([s.success for s in novice]) >= 0.6
+    assert np.mean([s.success for s in novice]) >= 0.85
     for field in ("steps_to_success", "path_length_cm"):
         assert ok(expert, field).mean() < ok(novice, field).mean(), field
         for human in (expert, novice):

@@ -108,21 +108,22 @@ PROFILES: dict[str, OperatorParams] = {
 # faster (≈ 75 steps) and our natural novice wanders further (≈ 20 cm), so a comparison on them would measure demo
 # length, not skill. The matched profiles are the same people working at the paper's pace: the expert slower and
 # more deliberate (comfortable speed, Fitts intercept, a longer look at the closing jaw, using the whole workspace
-# before re-centring the hand, a smaller height misjudgement), the novice with a path near the paper novices' (a
+# before re-centring the hand), the novice with a path near the paper novices' (a
 # better-aligned felt frame and gain, less endpoint scatter, perception noise and tremor, the expert's accuracy
 # reached with more corrections, a shorter back-off, a slower pace). A novice's path grows with every failed grasp
 # (the back-off and re-approach), so within the paper's novice path the novice can fail about a quarter of a grasp
 # per demo. Skill still shows where the paper's non-experts differed: tremor, hesitation (idle), the height
 # misjudgement behind failed grasps and recoveries, reactive clutching, reaction and Fitts timing, and the slips
-# (slips.py): the matched novice hurries four times as many grasps as the matched expert, accepts a looser approach
-# and misjudges depth three times as much, so fails about three times as many attempts; both lapse less per second
-# than at their own pace (the slow, deliberate carry of the matched pace would otherwise multiply the expert's
-# drops), the novice still 3× the expert. Calibrated with ``benchmarks/demo_sources.py`` (100 episodes per source,
-# 4 operators × 25).
+# (slips.py): asked to take its time, the matched expert waits on everything but the jaw, and closes it while the tool
+# is still settling on half its grasps (at its own pace, a third); the matched novice does so on four in five and
+# accepts a looser approach, and misjudges depth half as much again, so fails two to three times as many attempts;
+# both lapse less per second than at their own pace (the slow, deliberate carry of the matched pace would otherwise
+# multiply the expert's drops), the novice still 3× the expert. Calibrated with ``benchmarks/demo_sources.py`` (100
+# episodes per source, 4 operators × 25).
 MATCHED_PROFILES: dict[str, OperatorParams] = {
     "expert_matched": dataclasses.replace(
         PROFILES["expert"], speed_fraction=0.34, fitts_intercept_s=0.3, jaw_wait_s=1.0, frame_rotation_spread_deg=2.0,
-        clutch_margin_mm=3.0, early_close_probability=0.2, grip_lapse_per_s=0.012, depth_bias_mm=0.4),
+        clutch_margin_mm=3.0, early_close_probability=0.5, early_close_slack=4.0, grip_lapse_per_s=0.012),
     "novice_matched": dataclasses.replace(
         PROFILES["novice"], frame_rotation_spread_deg=1.0, internal_gain_spread=0.02, endpoint_sd=0.05, drift_sd=0.03,
         weber_fraction=0.03, lateral_noise_mm=0.2, depth_noise_mm=0.4, accuracy_mm=0.6, max_corrections=6,
