@@ -15,8 +15,8 @@ random actions). A probe installed as the env's ``substep_hook`` measures after 
 * held-object overlap (mm): a held object's deepest overlap with the blades holding it and with static bodies
   (press-through).
 
-The probe reads state without changing it: no forward-kinematics pass (the wrist's frame comes from a blade's stored
-frame), so an episode is bit-identical with and without it (tests/test_held_objects.py).
+The probe reads state without changing it: no forward-kinematics pass (the wrist's frame comes from the joint
+positions), so an episode is bit-identical with and without it (tests/test_held_objects.py).
 
 Held runs (``held-bang-bang``, ``held-spin``, ``held-press``) take the oracle until a hand has welded its object,
 then give rough input with that hand's jaw kept closed; ``chatter`` closes and lifts a jaw just above a jack and
@@ -161,7 +161,7 @@ class Probe:
             for s in self.static:
                 for p in c.getClosestPoints(g.object_id, s, 0.0):
                     self.held["static"] = max(self.held["static"], -p[8] / SCALING)
-            rel = relative_pose(c, g.psm.body, g.object_id, getattr(g, "object_link", -1))
+            rel = relative_pose(c, g.psm, g.object_id, getattr(g, "object_link", -1))
             # From where the hold began (the grasp's own reference: a hold made at reset, as NeedleRegrasp's, began
             # before the probe looked); a carried object's weld restored is the same hold (grasp.py, 6. Carry).
             slip = float(np.linalg.norm(rel - g.held_at)) / SCALING
@@ -184,18 +184,12 @@ def has_collision_shape(c, body: int) -> bool:
     return False
 
 
-def wrist_frame(c, body: int) -> tuple:
-    """The wrist-yaw (EEF) link's world frame as the last physics step left it, read without a forward-kinematics
-    pass (which would move the solver's next result, see Probe): blade 6's stored frame (a link with a collision
-    shape, updated by the step) turned back by its joint (the blade turns about the wrist-yaw link's z)."""
-    blade = c.getLinkState(body, JAW_JOINTS[0])
-    half = 0.5 * c.getJointState(body, JAW_JOINTS[0])[0]
-    return c.multiplyTransforms(blade[4], blade[5], [0, 0, 0], [0, 0, -np.sin(half), np.cos(half)])
-
-
-def relative_pose(c, body: int, obj: int, link: int = -1) -> np.ndarray:
-    """The held object's (its base's, or its ``link``'s) position in the wrist (EEF) frame, scaled units."""
-    eef = wrist_frame(c, body)
+def relative_pose(c, psm, obj: int, link: int = -1) -> np.ndarray:
+    """The held object's (its base's, or its ``link``'s) position in the wrist (EEF) frame, scaled units. The wrist's
+    frame comes from the joint positions (Psm.wrist_frame), where the last physics step left the colliders, without
+    a forward-kinematics pass (which would move the solver's next result, see Probe); PyBullet's stored link frames
+    are still those the step began with, and read by them a held object seemed a step's motion off its grip."""
+    eef = psm.wrist_frame()
     if link < 0:
         pos, quat = c.getBasePositionAndOrientation(obj)
     else:

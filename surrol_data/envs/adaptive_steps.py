@@ -47,6 +47,12 @@ CARRY_CLEARANCE_M = 0.002
 # Move an arm whose object is carried and which touches nothing over the period by its motors' closed-form rule
 # (free_motion.py) instead of PyBullet's steps; False: always PyBullet's.
 FREE_ARM_MOTION = True
+# Physics steps per coarse step while a held object touches a static body (see SubstepPlanner._held_on_static): the
+# sink of a step in which its contact is lost goes with the step's square. GauzeRetrieve's gauze held down on the tray
+# floor sank 1.25–1.35 mm into it in such a step at the coarse step, ≤ 0.15 mm at 2 (benchmarks/physics_realism.py
+# held-press, seeds 0–2; the gauze as a hull instead, whose contacts come before it overlaps, tumbled for seconds
+# where a box comes to rest at once).
+PRESSED_HOLD_REFINEMENT = 2
 # Tool links whose sweep matters (wrist pitch link, both jaws).
 _TOOL_LINKS = (4, 6, 7)
 _COLLIDING_LINKS = HAND_LINKS + JAW_JOINTS
@@ -88,6 +94,8 @@ class SubstepPlanner:
             self._plan_carry(dt)
         self._tool_k = self._k(self._tool_travel(dt), physics.MAX_TRAVEL_PER_STEP_M)
         bodies = self.dynamic_bodies()
+        if self._tool_k < PRESSED_HOLD_REFINEMENT and self._held_on_static(bodies):
+            self._tool_k = PRESSED_HOLD_REFINEMENT
         if self.carried:
             # A carried object touches nothing this period: no speed checks (it moves with the wrist exactly).
             self._slow_held.update(g.object_id for g in self.carried)
@@ -101,6 +109,22 @@ class SubstepPlanner:
             grasp = self.carried[0]   # (a carry has a single arm)
             if self._tool_clear(grasp, dt):
                 self.free_arm = grasp
+
+    def _held_on_static(self, bodies) -> bool:
+        """Does an object held by a weld or grip (not carried) touch a static body (at the last physics step)? Pressed
+        there by a stalled arm, it loses that contact for a step whenever it rises off it by a hair (Bullet's box-box
+        test reports boxes only once they overlap), and the arm's whole motor force then drives it in within the step."""
+        movable = None
+        for grasp in self.grasps:
+            if grasp.constraint is None or grasp.carried or grasp.object_link >= 0:
+                continue
+            if movable is None:
+                movable = set(bodies).union(g.psm.body for g in self.grasps)
+            obj = grasp.object_id
+            for p in pb.getContactPoints(obj, -1, -2, -2, self._cid):   # (positional: faster)
+                if (p[2] if p[1] == obj else p[1]) not in movable:
+                    return True
+        return False
 
     def _plan_carry(self, dt: float) -> None:
         """Carry a welded object for the period if nothing but its hand's blades can come within the period's reach
