@@ -185,15 +185,20 @@ def has_collision_shape(c, body: int) -> bool:
 
 
 def relative_pose(c, psm, obj: int, link: int = -1) -> np.ndarray:
-    """The held object's (its base's, or its ``link``'s) position in the wrist (EEF) frame, scaled units. The wrist's
-    frame comes from the joint positions (Psm.wrist_frame), where the last physics step left the colliders, without
-    a forward-kinematics pass (which would move the solver's next result, see Probe); PyBullet's stored link frames
-    are still those the step began with, and read by them a held object seemed a step's motion off its grip."""
-    eef = psm.wrist_frame()
+    """The held object's (its base's, or its ``link``'s) position in the wrist (EEF) frame, scaled units, read without
+    a forward-kinematics pass (which would move the solver's next result, see Probe). After a physics step the joints,
+    the colliders and a body's base are where the step left them, but PyBullet's stored link frames are still those
+    the step began with: a base is read against the wrist's frame computed from the joint positions (Psm.wrist_frame;
+    read against a blade's stored frame, a held object seemed a step's motion off its grip), a link (a drawer's
+    handle) against the wrist's stored frame (a blade's, turned back by its joint), both from the step's start."""
     if link < 0:
+        eef = psm.wrist_frame()
         pos, quat = c.getBasePositionAndOrientation(obj)
     else:
-        pos, quat = c.getLinkState(obj, link)[:2]   # (a drawer's handle: a link with a collision shape)
+        blade = c.getLinkState(psm.body, JAW_JOINTS[0])
+        half = 0.5 * c.getJointState(psm.body, JAW_JOINTS[0])[0]
+        eef = c.multiplyTransforms(blade[4], blade[5], [0, 0, 0], [0, 0, -np.sin(half), np.cos(half)])
+        pos, quat = c.getLinkState(obj, link)[:2]
     inv_p, inv_q = c.invertTransform(eef[0], eef[1])
     return np.asarray(c.multiplyTransforms(inv_p, inv_q, pos, quat)[0])
 

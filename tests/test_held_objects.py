@@ -10,6 +10,8 @@ import numpy as np
 
 import surrol_data.envs  # noqa: F401  (registers the ids)
 from surrol_data.envs import physics
+from surrol_data.envs.psm import JAW_JOINTS
+from surrol_data.envs.units import SCALING
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import physics_realism  # noqa: E402
@@ -82,6 +84,34 @@ def test_a_needle_whipped_round_in_the_hand_is_not_dropped_for_a_slip_it_did_not
     assert r.grasps >= 1
     assert r.drops == 0, "dropped for a slip it did not make"
     assert r.overlap["object-static"] <= _LIMIT_M, f"the needle {1000 * r.overlap['object-static']:.2f} mm in the pad"
+
+
+def test_a_held_needle_slipped_into_a_blade_is_dropped():
+    """The blades do not collide with what they hold, so an object slipping across the gap meets nothing: a needle slid
+    0.8 mm into a blade, well within the 2 mm slip limit, was held on with the blade inside it (NeedlePick seed 6, the
+    needle moved in the hand between two physics steps; an intermediate version of these changes read 1.24 mm so in a
+    held-press run). A blade 0.6 mm inside the held object is a lost hold, dropped and counted."""
+    env = gym.make("SurRoL/NeedlePick-v0")
+    u = env.unwrapped
+    obs, info = env.reset(seed=6)
+    for _ in range(50):
+        obs, _, _, _, info = env.step(u.oracle_action(obs))
+        if u.grasp.welded:
+            break
+    for _ in range(2):   # still, so that nothing moves within a physics step
+        env.step(np.array([0.0, 0.0, 0.0, 0.0, -1.0], np.float32))
+    g, c = u.grasp, u.client
+    assert g.welded and g.slip_m() < 0.3e-3
+    blade = c.getLinkState(u.psm.body, JAW_JOINTS[0])
+    away = np.asarray(c.getMatrixFromQuaternion(blade[5])).reshape(3, 3)[:, 0]   # blade 6's +x: into blade 6
+    pos, quat = c.getBasePositionAndOrientation(u.object_id)
+    c.resetBasePositionAndOrientation(u.object_id, (np.asarray(pos) + 0.8e-3 * SCALING * away).tolist(), quat)
+    c.performCollisionDetection()
+    movable = {u.object_id, u.psm.body}
+    depth = -min(p[8] for p in c.getClosestPoints(u.psm.body, u.object_id, 0.0, JAW_JOINTS[0])) / SCALING
+    assert 0.6e-3 < depth < 1e-3 and g.slip_m() < physics.GRASP_MAX_SLIP_M, (depth, g.slip_m())
+    assert g.gives(movable, 0.0) and g.drops == 1 and not g.attached
+    env.close()
 
 
 def test_a_jaw_chattering_above_a_jack_never_tip_pinches_it():

@@ -254,9 +254,9 @@ class Grasp:
     def _blade_in(self) -> bool:
         """A blade of this hand lies inside the held object deeper than ``physics.GRASP_MAX_PRESS_M``: the object has
         slipped across the gap into it (the blades do not collide with what they hold, so nothing else stops it). The
-        hand has lost it, as an object slipped past the limit: a needle gripped after a drop and pressed on the pad
-        slid 1.87 mm in the hand, within the slip limit, and a blade stood 1.24 mm inside it (NeedlePick held-press,
-        seed 2). Asked only once the slip passes ``_BLADE_CHECK_SLIP``: a grip leaves each blade at most
+        hand has lost it, as an object slipped past the limit (a needle gripped after a drop and pressed on the pad slid
+        1.87 mm in the hand, within the slip limit, and a blade stood 1.24 mm inside it: tests/test_held_objects.py).
+        Asked only once the slip passes ``_BLADE_CHECK_SLIP``: a grip leaves each blade at most
         ``physics.GRASP_MAX_BLADE_DEPTH_M`` inside, and only a slip takes it deeper."""
         cid, body, obj, link = self.client._client, self.psm.body, self.object_id, self.object_link
         for blade in JAW_JOINTS:
