@@ -29,7 +29,6 @@ import numpy as np
 from surrol_data.envs.physics import pb  # physics imports pybullet quietly
 
 from surrol_data.envs import objects, physics
-from surrol_data.envs.shapes import convex_boxes
 from surrol_data.envs.units import SCALING
 
 _MM = 1e-3
@@ -153,10 +152,7 @@ def block_spec(client, name: str, visual: bool = True, merged: bool = False) -> 
     ``merged`` (see ``MERGED_BLOCK_BOXES``)."""
     halves, centres = _block_boxes(name, merged)
     n = len(halves)
-    # Hulls, not boxes: Bullet's box-box test reports no contact until the boxes overlap, so a block pressed onto the
-    # table by its hand that rose off it by a hair met no table at the next physics step, and the stalled arm drove
-    # it 1.32 mm in within that step (MatchBoard, the tool pushed down while holding it).
-    col = convex_boxes(client, halves, centres)
+    col = client.createCollisionShapeArray([pb.GEOM_BOX] * n, halfExtents=halves, collisionFramePositions=centres)
     vis = client.createVisualShapeArray([pb.GEOM_BOX] * n, halfExtents=halves, visualFramePositions=centres,
                                         rgbaColors=[BLOCK_COLOURS[name]] * n) if visual else -1
     # The centre of mass is the pixels' centroid, not the grid centre; PyBullet reports the base pose there,

@@ -4,8 +4,12 @@ Bullet's box-box test reports only boxes that already overlap, so a box moving f
 no contact until it is inside it: a closed jaw (two box blades) swept down at full speed sank 1.6 mm into the
 pad within one physics step, and a poked gauze sank 3–4 mm into the tray floor. The general convex test also
 reports points a little apart (within Bullet's contact breaking threshold), and the solver then stops the
-approach before the surfaces meet. Every box that moves (the jaw blades, the gauze) is therefore a hull;
-static boxes can stay boxes, since a hull against a box takes the general test.
+approach before the surfaces meet. The jaw blades and PegBoard's ring (a ring of boxes, pushed 2.6 mm into its
+board by a spinning jaw) are therefore hulls; static boxes can stay boxes, since a hull against a box takes the
+general test. Not every moving box: the general test adds contact points one per physics step, so a hull comes to
+rest slowly where a box lands on its whole face at once (a hull gauze tumbled for seconds after a drop, a hull
+MatchBoard block laid half-turned over its groove tipped 40° into it); a held box pressed on a floor is kept from
+sinking by the sub-steps instead (adaptive_steps.SubstepPlanner._pressed_hold_refinement).
 """
 
 from __future__ import annotations
