@@ -86,18 +86,25 @@ def test_a_needle_whipped_round_in_the_hand_is_not_dropped_for_a_slip_it_did_not
     assert r.overlap["object-static"] <= _LIMIT_M, f"the needle {1000 * r.overlap['object-static']:.2f} mm in the pad"
 
 
-def test_a_held_needle_slipped_into_a_blade_is_dropped():
-    """The blades do not collide with what they hold, so an object slipping across the gap meets nothing: a needle slid
-    0.8 mm into a blade, well within the 2 mm slip limit, was held on with the blade inside it (NeedlePick seed 6, the
-    needle moved in the hand between two physics steps; an intermediate version of these changes read 1.24 mm so in a
-    held-press run). A blade 0.6 mm inside the held object is a lost hold, dropped and counted."""
+def _needle_welded(seed: int = 6):
+    """NeedlePick under its oracle until the needle is welded in the hand: (env, its unwrapped env, the last info)."""
     env = gym.make("SurRoL/NeedlePick-v0")
     u = env.unwrapped
-    obs, info = env.reset(seed=6)
+    obs, info = env.reset(seed=seed)
     for _ in range(50):
         obs, _, _, _, info = env.step(u.oracle_action(obs))
         if u.grasp.welded:
             break
+    return env, u, info
+
+
+def test_a_held_needle_slipped_into_a_blade_is_dropped():
+    """The blades do not collide with what they hold, so an object slipping across the gap meets nothing: a needle slid
+    0.8 mm into a blade, well within the 2 mm slip limit, was held on with the blade inside it (NeedlePick seed 6, the
+    needle moved in the hand between two physics steps; a needle gripped again after a drop and pressed on the pad slid
+    1.87 mm in the hand with a blade 1.24 mm inside it). A blade 0.6 mm inside the held object is a lost hold, dropped
+    and counted."""
+    env, u, info = _needle_welded()
     for _ in range(2):   # still, so that nothing moves within a physics step
         env.step(np.array([0.0, 0.0, 0.0, 0.0, -1.0], np.float32))
     g, c = u.grasp, u.client
@@ -126,13 +133,7 @@ def test_a_held_object_that_slips_past_2_mm_within_a_step_is_dropped_and_counted
     """Checked once per control step, a needle yanked out of the hand for a physics step and pushed back was never
     counted (2.81 mm out after the yank, 0.37 mm at the step's end, still held): the drop happens at the physics step
     the slip passes 2 mm."""
-    env = gym.make("SurRoL/NeedlePick-v0")
-    u = env.unwrapped
-    obs, info = env.reset(seed=6)
-    for _ in range(50):
-        obs, _, _, _, info = env.step(u.oracle_action(obs))
-        if u.grasp.welded:
-            break
+    env, u, info = _needle_welded()
     assert u.grasp.welded and info["drops"] == 0
     c = u.client
     seen = {"substep": 0, "slip": 0.0}

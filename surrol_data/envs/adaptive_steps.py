@@ -50,7 +50,7 @@ FREE_ARM_MOTION = True
 # A held object pressed on a static body is stepped finely enough that what presses it could drive it in by no more
 # than an object's travel limit within a physics step in which the contact is lost (SubstepPlanner.
 # _pressed_hold_refinement). GauzeRetrieve's gauze held down on the tray floor sank 1.25–1.35 mm into it in such a step
-# at the coarse step, ≤ 0.15 mm refined (benchmarks/physics_realism.py held-press, seeds 0–2); the gauze as a hull
+# at the coarse step, ≤ 0.17 mm refined (benchmarks/physics_realism.py held-press, seeds 0–2); the gauze as a hull
 # instead, whose contacts come before it overlaps, tumbled for seconds after a drop where a box comes to rest at once.
 # Tool links whose sweep matters (wrist pitch link, both jaws).
 _TOOL_LINKS = (4, 6, 7)
