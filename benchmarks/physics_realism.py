@@ -15,8 +15,8 @@ random actions). A probe installed as the env's ``substep_hook`` measures after 
 * held-object overlap (mm): a held object's deepest overlap with the blades holding it and with static bodies
   (press-through).
 
-The probe reads state without changing it: no forward-kinematics pass (the wrist's frame comes from a blade's stored
-frame), so an episode is bit-identical with and without it (tests/test_held_objects.py).
+The probe reads state without changing it: no forward-kinematics pass (the wrist's frame comes from the joint
+positions), so an episode is bit-identical with and without it (tests/test_held_objects.py).
 
 Held runs (``held-bang-bang``, ``held-spin``, ``held-press``) take the oracle until a hand has welded its object,
 then give rough input with that hand's jaw kept closed; ``chatter`` closes and lifts a jaw just above a jack and
@@ -161,7 +161,7 @@ class Probe:
             for s in self.static:
                 for p in c.getClosestPoints(g.object_id, s, 0.0):
                     self.held["static"] = max(self.held["static"], -p[8] / SCALING)
-            rel = relative_pose(c, g.psm.body, g.object_id, getattr(g, "object_link", -1))
+            rel = relative_pose(c, g.psm, g.object_id, getattr(g, "object_link", -1))
             # From where the hold began (the grasp's own reference: a hold made at reset, as NeedleRegrasp's, began
             # before the probe looked); a carried object's weld restored is the same hold (grasp.py, 6. Carry).
             slip = float(np.linalg.norm(rel - g.held_at)) / SCALING
@@ -184,22 +184,21 @@ def has_collision_shape(c, body: int) -> bool:
     return False
 
 
-def wrist_frame(c, body: int) -> tuple:
-    """The wrist-yaw (EEF) link's world frame as the last physics step left it, read without a forward-kinematics
-    pass (which would move the solver's next result, see Probe): blade 6's stored frame (a link with a collision
-    shape, updated by the step) turned back by its joint (the blade turns about the wrist-yaw link's z)."""
-    blade = c.getLinkState(body, JAW_JOINTS[0])
-    half = 0.5 * c.getJointState(body, JAW_JOINTS[0])[0]
-    return c.multiplyTransforms(blade[4], blade[5], [0, 0, 0], [0, 0, -np.sin(half), np.cos(half)])
-
-
-def relative_pose(c, body: int, obj: int, link: int = -1) -> np.ndarray:
-    """The held object's (its base's, or its ``link``'s) position in the wrist (EEF) frame, scaled units."""
-    eef = wrist_frame(c, body)
+def relative_pose(c, psm, obj: int, link: int = -1) -> np.ndarray:
+    """The held object's (its base's, or its ``link``'s) position in the wrist (EEF) frame, scaled units, read without
+    a forward-kinematics pass (which would move the solver's next result, see Probe). After a physics step the joints,
+    the colliders and a body's base are where the step left them, but PyBullet's stored link frames are still those
+    the step began with: a base is read against the wrist's frame computed from the joint positions (Psm.wrist_frame;
+    read against a blade's stored frame, a held object seemed a step's motion off its grip), a link (a drawer's
+    handle) against the wrist's stored frame (a blade's, turned back by its joint), both from the step's start."""
     if link < 0:
+        eef = psm.wrist_frame()
         pos, quat = c.getBasePositionAndOrientation(obj)
     else:
-        pos, quat = c.getLinkState(obj, link)[:2]   # (a drawer's handle: a link with a collision shape)
+        blade = c.getLinkState(psm.body, JAW_JOINTS[0])
+        half = 0.5 * c.getJointState(psm.body, JAW_JOINTS[0])[0]
+        eef = c.multiplyTransforms(blade[4], blade[5], [0, 0, 0], [0, 0, -np.sin(half), np.cos(half)])
+        pos, quat = c.getLinkState(obj, link)[:2]
     inv_p, inv_q = c.invertTransform(eef[0], eef[1])
     return np.asarray(c.multiplyTransforms(inv_p, inv_q, pos, quat)[0])
 

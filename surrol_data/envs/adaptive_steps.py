@@ -47,6 +47,11 @@ CARRY_CLEARANCE_M = 0.002
 # Move an arm whose object is carried and which touches nothing over the period by its motors' closed-form rule
 # (free_motion.py) instead of PyBullet's steps; False: always PyBullet's.
 FREE_ARM_MOTION = True
+# A held object pressed on a static body is stepped finely enough that what presses it could drive it in by no more
+# than an object's travel limit within a physics step in which the contact is lost (SubstepPlanner.
+# _pressed_hold_refinement). GauzeRetrieve's gauze held down on the tray floor sank 1.25–1.35 mm into it in such a step
+# at the coarse step, ≤ 0.17 mm refined (benchmarks/physics_realism.py held-press, seeds 0–2); the gauze as a hull
+# instead, whose contacts come before it overlaps, tumbled for seconds after a drop where a box comes to rest at once.
 # Tool links whose sweep matters (wrist pitch link, both jaws).
 _TOOL_LINKS = (4, 6, 7)
 _COLLIDING_LINKS = HAND_LINKS + JAW_JOINTS
@@ -72,6 +77,7 @@ class SubstepPlanner:
         self._closing: list = []   # grasps whose jaws close this control period and hold nothing yet
         self._slow_held: set[int] = set()
         self._motion: dict = {}    # per period: each tool's joint states, speed bound and sweep (see _tool_motion)
+        self._pressed: dict = {}   # grasp → refinement its held object's press asked for at this period's start
         self.carried: list = []    # grasps whose objects are carried kinematically this period
         self.free_arm = None       # the grasp whose arm touches nothing while nothing else moves, this period
         self.refined_steps = 0     # coarse steps that were split (for benchmarks)
@@ -88,6 +94,9 @@ class SubstepPlanner:
             self._plan_carry(dt)
         self._tool_k = self._k(self._tool_travel(dt), physics.MAX_TRAVEL_PER_STEP_M)
         bodies = self.dynamic_bodies()
+        pressed = self._pressed_hold_refinement(bodies, dt)
+        if pressed > self._tool_k:
+            self._tool_k = pressed
         if self.carried:
             # A carried object touches nothing this period: no speed checks (it moves with the wrist exactly).
             self._slow_held.update(g.object_id for g in self.carried)
@@ -101,6 +110,40 @@ class SubstepPlanner:
             grasp = self.carried[0]   # (a carry has a single arm)
             if self._tool_clear(grasp, dt):
                 self.free_arm = grasp
+
+    def _pressed_hold_refinement(self, bodies, dt: float) -> int:
+        """The refinement a held object (by a weld or grip, not carried) pressed on a static body needs: pressed there by
+        a stalled arm, it loses that contact for a physics step whenever it rises off it by a hair (Bullet's box-box
+        test reports boxes only once they overlap), and what pressed it then drives it in within the step, by up to
+        its contacts' push beyond its weight over the mass driven (its own and the arm's) times the step squared (at
+        the last physics step's contact forces). Split so that this stays within the objects' travel limit; 1 when
+        nothing presses."""
+        k, movable, cid = 1, None, self._cid
+        pressed = self._pressed
+        self._pressed = {}
+        for grasp in self.grasps:
+            if grasp.constraint is None or grasp.carried or grasp.object_link >= 0:
+                continue
+            if movable is None:
+                movable = set(bodies).union(g.psm.body for g in self.grasps)
+            obj = grasp.object_id
+            force = 0.0
+            for p in pb.getContactPoints(obj, -1, -2, -2, cid):   # (positional: faster)
+                if (p[2] if p[1] == obj else p[1]) not in movable:
+                    force += p[9]
+            if force > 0.0:
+                # (The object moves with the arm that holds it: both are driven, the links the insertion carries.)
+                mass = pb.getDynamicsInfo(obj, -1, cid)[0]
+                push = (force - mass * _GRAVITY) / (mass + grasp.psm.carried_lift[2] / _GRAVITY)   # scaled m/s²
+                if push > 0.0:
+                    self._pressed[grasp] = self._k(push * dt * dt / SCALING, self.object_travel_m)
+            elif grasp in pressed:
+                # Pressed at the last period's start and bounced off at its end: what pressed it presses it again
+                # within this period (a MatchBoard block held down on the table went 1.04 mm in at a coarse step so).
+                self._pressed[grasp] = 1
+                k = max(k, pressed[grasp])
+            k = max(k, self._pressed.get(grasp, 1))
+        return k
 
     def _plan_carry(self, dt: float) -> None:
         """Carry a welded object for the period if nothing but its hand's blades can come within the period's reach

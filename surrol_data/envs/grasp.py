@@ -86,6 +86,9 @@ _ACROSS = np.cos(np.deg2rad(45.0))   # contact normal within 45° of the inner-f
 _OPPOSED = np.cos(np.deg2rad(45.0))  # the two blades' contact normals within 45° of opposite
 _MAX_DEPTH = physics.GRASP_MAX_BLADE_DEPTH_M * SCALING
 _MAX_PRESS = physics.GRASP_MAX_PRESS_M * SCALING
+# The slip (real metres) past which gives() looks for a blade inside the held object (see _blade_in): a slip of a step
+# read at the step's start lags by a step's slip, so half of the depth a grip may leave, not all of it.
+_BLADE_CHECK_SLIP = 0.5 * physics.GRASP_MAX_BLADE_DEPTH_M
 _ORIGIN, _NO_TURN = (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)
 _WORLD_FRAME = pb.WORLD_FRAME
 # Direction from each blade towards the other, in the blade's link frame (blade 6 lies on +x, blade 7 on −x).
@@ -190,11 +193,12 @@ class Grasp:
             self._grip()
         return self.attached
 
-    def gives(self, movable) -> bool:
+    def gives(self, movable, dt: float) -> bool:
         """Called after every physics step while holding (not while carried: nothing makes a carried object slip nor
         presses it into anything): the grasp gives, and the drop is counted, if the object has slipped past
         ``max_slip_m`` in the hand or is pressed into a static body (anything not in ``movable``: the scene's objects
-        and the arms) deeper than ``physics.GRASP_MAX_PRESS_M``. Returns whether it was dropped.
+        and the arms) deeper than ``physics.GRASP_MAX_PRESS_M``. Returns whether it was dropped. ``dt``: the physics
+        step just taken.
 
         Checked once per control step, a block slipped 5.15 mm in the middle of a step and was back within 0.26 mm at
         its end, never counted (BiPegTransfer, bang-bang). Held by the weld, whose force limit is ten times what the
@@ -208,36 +212,58 @@ class Grasp:
         NeedleRings oracle, 5 episodes each), so a check skipped then could miss a slip past the limit."""
         if self.carried:
             return False
-        if self._slip_now() > self.max_slip_m or self._pressed_in(movable):
+        slip = self._slip_now(dt)
+        if slip > self.max_slip_m or (slip > _BLADE_CHECK_SLIP and self._blade_in()) or self._pressed_in(movable):
             self.drops += 1
             self.release()
             return True
         return False
 
-    def _slip_now(self) -> float:
-        """slip_m after a physics step, read without a forward-kinematics pass (a third of this check's cost): the
-        object in blade 6's frame (a link with a collision shape, whose stored frame the step left), compared with
+    def _slip_now(self, dt: float) -> float:
+        """The slip at the start of the physics step just taken (``dt`` seconds), read without a forward-kinematics pass
+        (a third of this check's cost): the object in blade 6's frame (a link with a collision shape), compared with
         where it was gripped turned by the blade's joint (the blade turns about the wrist-yaw link's z, through its
-        origin). Run after every physics step while holding, hence the plain arithmetic: no frame composed or
-        inverted, math not numpy for scalars (21 → 12 µs a read)."""
+        origin). PyBullet's stored link frames, read without that pass, are those the step began with (the colliders
+        and the joints are at its end), so the object is taken where it was then: a body's position after a step is
+        its position before plus its new velocity times the step. Compared with where it is now, a welded needle
+        whipped round by bang-bang input read up to 1.95 mm more than its slip (0.12 mm) and was dropped
+        (NeedlePick seed 2). The slip at a step's end is read after the next one, or by ``update`` at the period's
+        end. Run after every physics step while holding, hence the plain arithmetic: no frame composed or inverted,
+        math not numpy for scalars."""
         cid = self.client._client
         body = self.psm.body
         blade = pb.getLinkState(body, JAW_JOINTS[0], 0, 0, cid)
         angle = pb.getJointState(body, JAW_JOINTS[0], cid)[0]
         if self.object_link < 0:
-            obj = pb.getBasePositionAndOrientation(self.object_id, cid)[0]
-        else:   # (a drawer's handle: a link with a collision shape)
+            now = pb.getBasePositionAndOrientation(self.object_id, cid)[0]
+            v = pb.getBaseVelocity(self.object_id, cid)[0]
+            obj = (now[0] - v[0] * dt, now[1] - v[1] * dt, now[2] - v[2] * dt)
+        else:   # (a drawer's handle: a link with a collision shape, whose stored frame is the step's start too)
             obj = pb.getLinkState(self.object_id, self.object_link, 0, 0, cid)[0]
         origin, (qx, qy, qz, qw) = blade[4], blade[5]
         # The object in the blade's frame: its offset from the shared origin turned back by the blade's orientation.
         rel = pb.multiplyTransforms(_ORIGIN, (-qx, -qy, -qz, qw),
                                     (obj[0] - origin[0], obj[1] - origin[1], obj[2] - origin[2]), _NO_TURN)[0]
         # The wrist's frame is the blade's turned by −angle about z, so the grip point in the blade's frame is the
-        # one in the wrist's turned by −angle.
+        # one in the wrist's turned by −angle. (The jaw angle is held by the blade stops: its start-of-step value.)
         c, s = math.cos(angle), math.sin(angle)
         hx, hy, hz = self._held_at.tolist()
         return math.sqrt((rel[0] - c * hx - s * hy) ** 2 + (rel[1] + s * hx - c * hy) ** 2
                          + (rel[2] - hz) ** 2) / SCALING
+
+    def _blade_in(self) -> bool:
+        """A blade of this hand lies inside the held object deeper than ``physics.GRASP_MAX_PRESS_M``: the object has
+        slipped across the gap into it (the blades do not collide with what they hold, so nothing else stops it). The
+        hand has lost it, as an object slipped past the limit (a needle gripped after a drop and pressed on the pad slid
+        1.87 mm in the hand, within the slip limit, and a blade stood 1.24 mm inside it: tests/test_held_objects.py).
+        Asked only once the slip passes ``_BLADE_CHECK_SLIP``: a grip leaves each blade at most
+        ``physics.GRASP_MAX_BLADE_DEPTH_M`` inside, and only a slip takes it deeper."""
+        cid, body, obj, link = self.client._client, self.psm.body, self.object_id, self.object_link
+        for blade in JAW_JOINTS:
+            for p in pb.getClosestPoints(body, obj, 0.0, blade, link, physicsClientId=cid):
+                if p[8] < -_MAX_PRESS:
+                    return True
+        return False
 
     def _pressed_in(self, movable) -> bool:
         """The held object (not a link: a drawer's handle is part of its cabinet) overlaps a static body deeper than
@@ -331,16 +357,13 @@ class Grasp:
                                                   v[2] + w[0] * ry - w[1] * rx), w, cid)
 
     def follow_seen(self) -> None:
-        """While carried, after each physics step for a probe that looks: the object where the hand has it, the wrist's
-        frame read from a blade's (a link with a collision shape, whose stored frame the physics step left) turned
-        back by the blade's joint. A forward-kinematics pass between two physics steps moves the solver's next
-        result by ~1e-7 rad, growing to millimetres: a probe must leave the episode as it is without it."""
-        cid = self.client._client
-        blade = pb.getLinkState(self.psm.body, JAW_JOINTS[0], 0, 0, cid)
-        angle = pb.getJointState(self.psm.body, JAW_JOINTS[0], cid)[0]
-        half = 0.5 * angle
-        origin, turn = pb.multiplyTransforms(blade[4], blade[5], _ORIGIN, (0.0, 0.0, -np.sin(half), np.cos(half)))
-        self._put(origin, turn)
+        """While carried, after each physics step for a probe that looks: the object where the hand has it now, the
+        wrist's frame computed from the joint positions (Psm.wrist_frame), where the step left the blades' colliders.
+        A forward-kinematics pass between two physics steps moves the solver's next result by ~1e-7 rad, growing to
+        millimetres: a probe must leave the episode as it is without it. (A blade's stored frame, read without that
+        pass, is the one the step began with: the object put by it lagged the blades by a step's motion, a blade up to
+        1.48 mm inside a gauze carried under bang-bang input.)"""
+        self._put(*self.psm.wrist_frame())
 
     def _put(self, origin, turn) -> None:
         pos, quat = pb.multiplyTransforms(origin, turn, *self._carry_at)

@@ -313,6 +313,15 @@ class Psm:
         """World pose of the tool tip (4×4, real metres), from the simulated joint positions."""
         return self.world_T_rcm.dot(kin.psm_fk(self.joint_positions()))   # (.dot: see kinematics)
 
+    def wrist_frame(self) -> tuple:
+        """The wrist-yaw (EEF) link's world frame (scaled position, quaternion) at the joint positions now, without a
+        forward-kinematics pass (which moves the solver's next result). After a physics step the link colliders are
+        at the new joint positions but PyBullet's stored link frames (``getLinkState`` without that pass) are still
+        those the step began with: a carried gauze put in the hand by a blade's stored frame lagged the blades by a
+        physics step's motion, up to 1.4 mm inside one under bang-bang input."""
+        t = self.world_T_rcm.dot(kin.psm_link_frames(self.joint_positions())[EEF_LINK])
+        return (t[:3, 3] * SCALING).tolist(), matrix_to_quat(t[:3, :3])
+
     def link_pose_world(self, link: int) -> tuple[np.ndarray, np.ndarray]:
         """(position in real metres, rotation matrix) of a link, as PyBullet simulates it."""
         st = self.client.getLinkState(self.body, link, computeForwardKinematics=True)

@@ -324,7 +324,7 @@ class PsmEnv(gym.Env):
                     for grasp in carried:   # (a probe sees the carried object where it is at every step)
                         grasp.follow_seen()
                 if holding:
-                    holding = [g for g in holding if g.attached and not g.gives(movable)]
+                    holding = [g for g in holding if g.attached and not g.gives(movable, physics.TIME_STEP / k_now)]
                 if watched:
                     gripped = [g for g in watched if g.grip_if_between()]
                     if gripped:

@@ -29,6 +29,7 @@ from surrol_data.envs.physics import pb  # physics imports pybullet quietly
 
 from surrol_data.envs import objects, physics
 from surrol_data.envs.objects import TABLE_TOP_Z
+from surrol_data.envs.shapes import convex_boxes
 from surrol_data.envs.units import SCALING
 
 _MM = 1e-3
@@ -147,8 +148,7 @@ def ring_spec(client, visual: bool = True) -> dict:
     """``createMultiBody`` arguments of the ring (reused to spawn a fresh body every reset)."""
     halves, centres, quats = _ring_segments()
     n = len(halves)
-    col = client.createCollisionShapeArray([pb.GEOM_BOX] * n, halfExtents=halves, collisionFramePositions=centres,
-                                           collisionFrameOrientations=quats)
+    col = convex_boxes(client, halves, centres, quats)
     vis = client.createVisualShapeArray([pb.GEOM_BOX] * n, halfExtents=halves, visualFramePositions=centres,
                                         visualFrameOrientations=quats, rgbaColors=[RING_COLOUR] * n) if visual else -1
     return dict(baseMass=RING_MASS, baseCollisionShapeIndex=col, baseVisualShapeIndex=vis, basePosition=[0, 0, 0])
