@@ -65,6 +65,8 @@ HELD_TASKS = [t for t in ["NeedleReach", "GauzeRetrieve", "NeedlePick", "PegTran
               if t != "NeedleReach"]   # (NeedleReach's jaw is blocked closed)
 CHATTER_TASKS = ["PickAndPlace"]
 CHATTER_HEIGHT_M = 0.003   # above the oracle's grasp point on a jack's upward arm: the blade ends reach its sides
+CHATTER_CLOSURES = 8       # per episode
+TIP_PINCH_MAX_DEG = 135.0  # blade contact normals less than this apart: a tip-pinch, not the object across the gap
 GRASPING_TASKS = ["GauzeRetrieve", "NeedlePick", "PegTransfer"]      # poke/swipe targets (single arm, jaw free)
 DROP_TASKS = ["GauzeRetrieve", "NeedlePick", "PegTransfer"]          # gauze→tray floor, needle→pad, block→board
 INSIDE_TOLERANCE_M = 0.001
@@ -98,6 +100,7 @@ class Result:
     held_blade: float = 0.0         # a held object's deepest overlap with a blade of the hand holding it
     held_static: float = 0.0        # ... and with a static body (press-through)
     tip_pinch_lifts: int = 0        # objects lifted by a grasp whose blades did not have it between their faces
+    pinches: int = 0                # chatter closures that ended in a tip-pinch (blade_pair_angle < TIP_PINCH_MAX_DEG)
 
     def merge_overlaps(self, probe: "Probe") -> None:
         for k, v in probe.overlap.items():
@@ -203,6 +206,30 @@ def relative_pose(c, psm, obj: int, link: int = -1) -> np.ndarray:
     return np.asarray(c.multiplyTransforms(inv_p, inv_q, pos, quat)[0])
 
 
+def blade_pair_angle(c, body: int, obj: int) -> float | None:
+    """The widest angle (degrees) between a contact normal of one blade's inner-face touches of the object and one of
+    the other's (as in ``between_blades``); None unless both blades touch it so. ~180°: the object lies across the gap
+    between the faces; ~90°: a tip-pinch, the blade ends on two sides of it."""
+    normals = [inner_face_touches(c, body, obj, j, towards_other) for j, towards_other in zip(JAW_JOINTS, (-1.0, 1.0))]
+    if not all(normals):
+        return None
+    return max(float(np.degrees(np.arccos(np.clip(np.dot(a, b), -1.0, 1.0)))) for a in normals[0] for b in normals[1])
+
+
+def inner_face_touches(c, body: int, obj: int, blade: int, towards_other: float) -> list:
+    """The contact normals (world, object → blade) of the blade's touches of the object on its inner face: normal
+    within 45° of the face's, at a point along the blade's length (not beyond its end)."""
+    link = c.getLinkState(body, blade)   # (a blade has a collision shape: its stored frame is the step's)
+    inv_p, inv_q = c.invertTransform(link[4], link[5])
+    touches = []
+    for p in c.getClosestPoints(body, obj, 0.0005 * SCALING, linkIndexA=blade):
+        local = np.asarray(c.multiplyTransforms(inv_p, inv_q, p[6], [0, 0, 0, 1])[0]) / SCALING
+        normal = np.asarray(c.multiplyTransforms([0, 0, 0], inv_q, p[7], [0, 0, 0, 1])[0])
+        if -towards_other * normal[0] > np.cos(np.pi / 4) and -_FACE_TOL_M <= local[1] <= _BLADE_LENGTH_M:
+            touches.append(np.asarray(p[7]))
+    return touches
+
+
 def between_blades(c, body: int, obj: int) -> bool:
     """Independent geometric check: does the object touch both blades on their inner faces, within the blades?
 
@@ -212,19 +239,7 @@ def between_blades(c, body: int, obj: int) -> bool:
     q = [s[0] for s in c.getJointStates(body, JAW_JOINTS)]
     if q[1] - q[0] < _MIN_OPENING_RAD:
         return False
-    for j, towards_other in zip(JAW_JOINTS, (-1.0, 1.0)):
-        link = c.getLinkState(body, j)   # (a blade has a collision shape: its stored frame is the step's)
-        inv_p, inv_q = c.invertTransform(link[4], link[5])
-        ok = False
-        for p in c.getClosestPoints(body, obj, 0.0005 * SCALING, linkIndexA=j):
-            local = np.asarray(c.multiplyTransforms(inv_p, inv_q, p[6], [0, 0, 0, 1])[0]) / SCALING
-            normal = np.asarray(c.multiplyTransforms([0, 0, 0], inv_q, p[7], [0, 0, 0, 1])[0])
-            across = -towards_other * normal[0] > np.cos(np.pi / 4)
-            along = -_FACE_TOL_M <= local[1] <= _BLADE_LENGTH_M
-            ok = ok or (across and along)
-        if not ok:
-            return False
-    return True
+    return all(inner_face_touches(c, body, obj, j, towards_other) for j, towards_other in zip(JAW_JOINTS, (-1.0, 1.0)))
 
 
 # ---------------------------------------------------------------------- scene facts
@@ -525,31 +540,44 @@ def run_held(task: str, kind: str, episodes: int, seeds=None) -> Result:
 
 def run_chatter(task: str, episodes: int, seeds=None) -> Result:
     """A jaw chattering CHATTER_HEIGHT_M above the oracle's grasp point on a jack's upward arm: closed for 2 steps,
-    lifted 9 mm closed, opened and lowered back, 8 times per episode. Where the blade ends reach the arm's sides from
-    above, a grasp there is a tip-pinch (contact normals ~90° apart); counted as a tip-pinch lift when a jack rose
-    more than 5 mm with the jaw holding it."""
+    lifted 9 mm closed, opened and lowered back, 8 times per episode. Each closure is aimed afresh at the jack where
+    it now lies (the closures before nudge it: at a fixed point, PickAndPlace seed 4's jack came to lie with its arm
+    across the blades' ends, 135–163° normals, and was rightly gripped). There the blade ends reach the arm's sides
+    from above: a tip-pinch (both inner faces touching, contact normals less than 135° apart: ``pinches``), which
+    must not grasp; counted as a tip-pinch lift when a jack rose more than 5 mm with the jaw holding it."""
     env = gym.make(env_id(task))
     u = env.unwrapped
     res = Result(task, "chatter")
     c = u.client
+    g = u.grasp
+    rule, seen = g.between_blades, []
+
+    def watched() -> bool:   # the grasp rule, asked at every physics step of a closure: the blades' normals then
+        angles = [a for a in (blade_pair_angle(c, u.psm.body, j) for j in u.jacks) if a is not None]
+        seen.extend(angles)
+        return rule()
+
+    g.between_blades = watched
     for seed, obs, probe in probed_episodes(env, task, res, range(episodes) if seeds is None else seeds):
         while u._wp_index < 2:   # the oracle's approach over its first jack, jaw open
             obs, _, _ = timed_step(env, u.oracle_action(obs), res, probe, [False])
         wp = u.oracle_waypoints[2]
-        target = (wp["target"](obs) if callable(wp["target"]) else wp["target"]) + [0.0, 0.0, CHATTER_HEIGHT_M]
-        move_tip(env, target, 0.5, res, probe, steps=20, gain=0.5)
-        for _ in range(8):
+        for _ in range(CHATTER_CLOSURES):
+            seen.clear()
+            target = (wp["target"](obs) if callable(wp["target"]) else wp["target"]) + [0.0, 0.0, CHATTER_HEIGHT_M]
+            move_tip(env, target, 0.5, res, probe, steps=20, gain=0.5)
             before = np.array([c.getBasePositionAndOrientation(j)[0][2] for j in u.jacks])
             for _ in range(2):
-                _, info, _ = timed_step(env, np.array([0, 0, 0, 0, -1.0]), res, probe, [True])
+                obs, info, _ = timed_step(env, np.array([0, 0, 0, 0, -1.0]), res, probe, [True])
+            res.pinches += bool(seen) and max(seen) < TIP_PINCH_MAX_DEG
             for _ in range(3):
-                _, info, _ = timed_step(env, np.array([0, 0, 0.6, 0, -1.0]), res, probe, [True])
+                obs, info, _ = timed_step(env, np.array([0, 0, 0.6, 0, -1.0]), res, probe, [True])
             after = np.array([c.getBasePositionAndOrientation(j)[0][2] for j in u.jacks])
             if info["grasped"] and np.max(after - before) / SCALING > 0.005:
                 res.tip_pinch_lifts += 1
-            timed_step(env, np.array([0, 0, 0, 0, 1.0]), res, probe, [False])
+            obs, _, _ = timed_step(env, np.array([0, 0, 0, 0, 1.0]), res, probe, [False])
             for _ in range(3):
-                timed_step(env, np.array([0, 0, -0.6, 0, 1.0]), res, probe, [False])
+                obs, _, _ = timed_step(env, np.array([0, 0, -0.6, 0, 1.0]), res, probe, [False])
     return res
 
 
@@ -590,7 +618,7 @@ def print_table(results: list[Result], episodes: int) -> None:
                         "0 tunnelled / inside / not-between grasps, tracking ≤ 10 %)")
     cols = ["task", "run", "tool↔static", "tool↔object", "object↔static", "object↔object", "below support",
             "out of ws", "left inside", "grasps", "not between", "drops", "max slip", "held↔blade",
-            "held↔static", "tip-pinch lifts", "tracking err",
+            "held↔static", "tip-pinches", "tip-pinch lifts", "tracking err",
             "success", "steps/s"]
     for col in cols:
         table.add_column(col, justify="left" if col in ("task", "run") else "right")
@@ -606,7 +634,8 @@ def print_table(results: list[Result], episodes: int) -> None:
         table.add_row(r.task, r.run, *(mm(r.overlap[k]) for k in OVERLAP_CLASSES),
                       count(r.below_support), count(r.out_of_workspace), count(r.left_inside), str(r.grasps),
                       count(r.grasps_not_between), str(r.drops), mm(r.max_slip, 2.0), mm(r.held_blade),
-                      mm(r.held_static), count(r.tip_pinch_lifts),
+                      mm(r.held_static), f"{r.pinches}/{CHATTER_CLOSURES * r.episodes}" if r.run == "chatter" else "—",
+                      count(r.tip_pinch_lifts),
                       "—" if r.tracking_error is None else
                       (f"{100 * r.tracking_error:.1f} % of {r.tracked_moves}" if r.tracking_error <= 0.1
                        else f"[red]{100 * r.tracking_error:.1f} % of {r.tracked_moves}[/red]"),

@@ -127,6 +127,18 @@ def test_a_jaw_chattering_above_a_jack_never_tip_pinches_it():
     lifted at 8 of 8 closures."""
     r = physics_realism.run_chatter("PickAndPlace", 1, seeds=[0])
     assert r.grasps == 0 and r.tip_pinch_lifts == 0, (r.grasps, r.tip_pinch_lifts)
+    assert r.pinches >= 6, r.pinches   # (the closures were tip-pinches: 7 of 8 touched it, normals 83–103° apart)
+
+
+def test_each_chatter_closure_is_a_tip_pinch_on_the_jack_where_it_now_lies():
+    """PickAndPlace seed 4, the jaw closed again and again at the point first aimed at: the tip-pinches (normals
+    87–97° apart, none gripped) nudged the jack until an arm lay across the blade ends, touched on opposite sides at
+    its widest (normals 135–163° apart, 7–19° above the horizontal, on both inner faces 9.4–10.0 mm along the blades,
+    6.5–6.7 mm out on the arm), and the jaw gripped and lifted it at 4 of 8 closures: a grasp, rightly made, that the
+    case counted as a tip-pinch lift. Aimed afresh at the jack each time, every closure is a tip-pinch, and none grips."""
+    r = physics_realism.run_chatter("PickAndPlace", 1, seeds=[4])
+    assert r.grasps == 0 and r.tip_pinch_lifts == 0, (r.grasps, r.tip_pinch_lifts)
+    assert r.pinches == 8, r.pinches
 
 
 def test_a_held_object_that_slips_past_2_mm_within_a_step_is_dropped_and_counted():
