@@ -8,7 +8,8 @@ from surrol_data.cli import app
 
 
 def _said(*args):
-    run = CliRunner().invoke(app, list(args))
+    # a wide terminal: Rich folds a path longer than the line mid-word (a worker's tmp_path is 10 characters longer)
+    run = CliRunner().invoke(app, list(args), env={"COLUMNS": "250"})
     return run.exit_code, " ".join(run.output.split())
 
 
