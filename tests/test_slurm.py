@@ -166,27 +166,28 @@ def test_the_study_on_slurm_gives_the_local_numbers(cluster, tmp_path):
 
 
 def test_a_failed_study_job_is_shown_and_resubmitted_alone(cluster, tmp_path):
-    """One run's job is cancelled: --report shows it failed, and the same command submits that run only."""
-    quick = ["--override", "experiment.study.seeds=[0]", "--override", "experiment.study.sources=[script,expert]"]
+    """One run's job is cancelled: --report shows it failed, and the same command submits that run only. (Two seeds
+    of one source: one demo set to build.)"""
+    quick = ["--override", "experiment.study.seeds=[0,1]", "--override", "experiment.study.sources=[script]"]
     out = tmp_path / "study"
     env = _env(cluster)
     first = subprocess.run([*CLI, "study", "table1_quick", "--out", str(out), *quick, *SLURM], env=env,
                            capture_output=True, text=True, timeout=1800)
     assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
     jobs = [json.loads(line) for line in (out / "slurm" / "jobs.jsonl").read_text().splitlines()]
-    assert [(j["source"], j["seed"]) for j in jobs] == [("script", 0), ("expert", 0)]
+    assert [(j["source"], j["seed"]) for j in jobs] == [("script", 0), ("script", 1)]
     subprocess.run(["scancel", jobs[1]["job_id"]], env=cluster.env, check=True)
     cluster.wait_empty()
     report = subprocess.run([*CLI, "study", "table1_quick", "--out", str(out), *quick, "--report"], env=env,
                             capture_output=True, text=True, timeout=600)
     assert report.returncode == 0, report.stdout + report.stderr
-    assert re.search(r"script/0\s.*finished", report.stdout) and re.search(r"expert/0\s.*failed", report.stdout)
+    assert re.search(r"script/0\s.*finished", report.stdout) and re.search(r"script/1\s.*failed", report.stdout)
     again = subprocess.run([*CLI, "study", "table1_quick", "--out", str(out), *quick, *SLURM, "--wait"], env=env,
                            capture_output=True, text=True, timeout=1800)
     assert again.returncode == 0, again.stdout[-3000:] + again.stderr[-3000:]
-    assert "submitted 1 SLURM job(s), one per run: expert/0" in again.stdout
+    assert "submitted 1 SLURM job(s), one per run: script/1" in again.stdout
     assert len((out / "slurm" / "jobs.jsonl").read_text().splitlines()) == 3
-    assert (out / "runs" / "expert" / "seed0" / "run.json").is_file() and (out / "report.md").is_file()
+    assert (out / "runs" / "script" / "seed1" / "run.json").is_file() and (out / "report.md").is_file()
 
 
 @pytest.fixture(scope="module")
