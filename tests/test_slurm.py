@@ -126,7 +126,8 @@ def _study_on_slurm_equals_local(cluster, tmp_path: Path, sources: list[str]) ->
 
     from surrol_data.cli import app
 
-    quick = ["--override", "experiment.study.seeds=[0]", "--override", f"experiment.study.sources=[{','.join(sources)}]"]
+    quick = ["--override", "experiment.study.seeds=[0]",
+             "--override", f"experiment.study.sources=[{','.join(sources)}]"]
     local = tmp_path / "local"
     for _ in sources:
         result = CliRunner().invoke(app, ["study", "table1_quick", "--out", str(local), *quick, "--next", "1"])
