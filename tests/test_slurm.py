@@ -73,9 +73,10 @@ def test_a_sweep_runs_as_slurm_jobs_and_reports_the_failed_one(cluster, reach_de
 
 
 def test_a_requeued_job_resumes_from_its_checkpoint(cluster, reach_demos, tmp_path):
+    epochs = 20     # about 10 s of training left when the job is requeued (a smoke epoch: ~0.5 s)
     run = tmp_path / "sweep" / "NeedleReach" / "seed0"
     sweep = subprocess.Popen([*CLI, "train", "-m", *JOB, "seed=0", "task=NeedleReach", "resume=true",
-                              *_train_overrides(reach_demos.parent, "experiment.epochs=40")], cwd=tmp_path,
+                              *_train_overrides(reach_demos.parent, f"experiment.epochs={epochs}")], cwd=tmp_path,
                              env=_env(cluster), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.monotonic() + 1500
@@ -91,9 +92,9 @@ def test_a_requeued_job_resumes_from_its_checkpoint(cluster, reach_demos, tmp_pa
     assert sweep.returncode == 0, err[-3000:]
     process = json.loads((run / "process.json").read_text())
     # it resumed from a checkpoint: not from zero, and not after the run had finished
-    assert process["resumed_after_epoch"] is not None and 1 <= process["resumed_after_epoch"] < 40, process
+    assert process["resumed_after_epoch"] is not None and 1 <= process["resumed_after_epoch"] < epochs, process
     rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
-    assert [r["epoch"] for r in rows] == list(range(41))
+    assert [r["epoch"] for r in rows] == list(range(epochs + 1))
     restarts = subprocess.run(["scontrol", "show", "job", job], env=cluster.env, capture_output=True, text=True)
     assert "Restarts=1" in restarts.stdout, restarts.stdout   # SLURM ran the same job twice
     cluster.wait_empty()
@@ -116,18 +117,19 @@ def _run_numbers(folder: Path) -> tuple[str, str]:
     return metrics.to_csv(index=False), pd.read_csv(folder / "eval_episodes.csv").to_csv(index=False)
 
 
-def test_the_study_on_slurm_gives_the_local_numbers(cluster, tmp_path):
-    """table1_quick (one seed) on SLURM, one job per run, against the same runs trained here one at a time
-    (`--next 1`: a batch of one, as each job trains; a local batch of several differs from single runs by
+def _study_on_slurm_equals_local(cluster, tmp_path: Path, sources: list[str]) -> None:
+    """table1_quick (one seed, ``sources``) on SLURM, one job per run, against the same runs trained here one at a
+    time (`--next 1`: a batch of one, as each job trains; a local batch of several differs from single runs by
     floating-point rounding, docs/training.md#batched-path): every metric of every epoch and every evaluation
     episode equal, and so the report's Table I."""
     from typer.testing import CliRunner
 
     from surrol_data.cli import app
 
-    quick = ["--override", "experiment.study.seeds=[0]"]
+    quick = ["--override", "experiment.study.seeds=[0]",
+             "--override", f"experiment.study.sources=[{','.join(sources)}]"]
     local = tmp_path / "local"
-    for _ in range(3):
+    for _ in sources:
         result = CliRunner().invoke(app, ["study", "table1_quick", "--out", str(local), *quick, "--next", "1"])
         assert result.exit_code == 0, result.output
     on_slurm = tmp_path / "slurm"
@@ -138,9 +140,9 @@ def test_the_study_on_slurm_gives_the_local_numbers(cluster, tmp_path):
     submitted = subprocess.run([*CLI, "study", "table1_quick", "--out", str(on_slurm), *quick, *SLURM, "--wait"],
                                env=env, capture_output=True, text=True, timeout=3600)
     assert submitted.returncode == 0, submitted.stdout[-3000:] + submitted.stderr[-3000:]
-    assert "submitted 3 SLURM job(s), one per run" in submitted.stdout
+    assert f"submitted {len(sources)} SLURM job(s), one per run" in submitted.stdout
     runs = sorted(p.parent.relative_to(on_slurm / "runs").as_posix() for p in (on_slurm / "runs").rglob("run.json"))
-    assert runs == ["expert/seed0", "novice/seed0", "script/seed0"]
+    assert runs == sorted(f"{source}/seed0" for source in sources)
     assert not any((on_slurm / ".work").rglob("checkpoint.pt"))     # no run left half-trained
     for run in runs:
         record = json.loads((on_slurm / "runs" / run / "run.json").read_text())
@@ -153,39 +155,57 @@ def test_the_study_on_slurm_gives_the_local_numbers(cluster, tmp_path):
     assert again.returncode == 0 and "nothing to submit" in again.stdout, again.stdout + again.stderr
 
 
+def test_a_study_run_on_slurm_gives_the_local_numbers(cluster, tmp_path):
+    """One run (script/0) in one job: what the whole study below shows, at a third of its cost, in the default run."""
+    _study_on_slurm_equals_local(cluster, tmp_path, ["script"])
+
+
+@pytest.mark.slow
+def test_the_study_on_slurm_gives_the_local_numbers(cluster, tmp_path):
+    """All three sources, three jobs (two at a time on the two-CPU node)."""
+    _study_on_slurm_equals_local(cluster, tmp_path, ["script", "novice", "expert"])
+
+
 def test_a_failed_study_job_is_shown_and_resubmitted_alone(cluster, tmp_path):
-    """One run's job is cancelled: --report shows it failed, and the same command submits that run only."""
-    quick = ["--override", "experiment.study.seeds=[0]", "--override", "experiment.study.sources=[script,expert]"]
+    """One run's job is cancelled: --report shows it failed, and the same command submits that run only. (Two seeds
+    of one source: one demo set to build.)"""
+    quick = ["--override", "experiment.study.seeds=[0,1]", "--override", "experiment.study.sources=[script]"]
     out = tmp_path / "study"
     env = _env(cluster)
     first = subprocess.run([*CLI, "study", "table1_quick", "--out", str(out), *quick, *SLURM], env=env,
                            capture_output=True, text=True, timeout=1800)
     assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
     jobs = [json.loads(line) for line in (out / "slurm" / "jobs.jsonl").read_text().splitlines()]
-    assert [(j["source"], j["seed"]) for j in jobs] == [("script", 0), ("expert", 0)]
+    assert [(j["source"], j["seed"]) for j in jobs] == [("script", 0), ("script", 1)]
     subprocess.run(["scancel", jobs[1]["job_id"]], env=cluster.env, check=True)
     cluster.wait_empty()
     report = subprocess.run([*CLI, "study", "table1_quick", "--out", str(out), *quick, "--report"], env=env,
                             capture_output=True, text=True, timeout=600)
     assert report.returncode == 0, report.stdout + report.stderr
-    assert re.search(r"script/0\s.*finished", report.stdout) and re.search(r"expert/0\s.*failed", report.stdout)
+    assert re.search(r"script/0\s.*finished", report.stdout) and re.search(r"script/1\s.*failed", report.stdout)
     again = subprocess.run([*CLI, "study", "table1_quick", "--out", str(out), *quick, *SLURM, "--wait"], env=env,
                            capture_output=True, text=True, timeout=1800)
     assert again.returncode == 0, again.stdout[-3000:] + again.stderr[-3000:]
-    assert "submitted 1 SLURM job(s), one per run: expert/0" in again.stdout
+    assert "submitted 1 SLURM job(s), one per run: script/1" in again.stdout
     assert len((out / "slurm" / "jobs.jsonl").read_text().splitlines()) == 3
-    assert (out / "runs" / "expert" / "seed0" / "run.json").is_file() and (out / "report.md").is_file()
+    assert (out / "runs" / "script" / "seed1" / "run.json").is_file() and (out / "report.md").is_file()
+
+
+@pytest.fixture(scope="module")
+def one_process(cluster, tmp_path_factory) -> Path:
+    """5 NeedleReach script episodes collected by one process: what both sharded collections are compared with."""
+    out = tmp_path_factory.mktemp("one_process") / "one"
+    one = subprocess.run([*CLI, "collect", "--source", "script", "--task", "NeedleReach", "--num-episodes", "5",
+                          "--out", str(out)], env=_env(cluster), capture_output=True, text=True, timeout=900)
+    assert one.returncode == 0, one.stdout + one.stderr
+    return out
 
 
 @pytest.mark.parametrize("launcher", ["local", "slurm"])
-def test_sharded_collection_equals_one_process_by_seed(cluster, tmp_path, launcher):
+def test_sharded_collection_equals_one_process_by_seed(cluster, one_process, tmp_path, launcher):
     from surrol_data.datasets.reader import DatasetReader
     from surrol_data.datasets.validate import validate_dataset
 
-    one = subprocess.run([*CLI, "collect", "--source", "script", "--task", "NeedleReach", "--num-episodes", "5",
-                          "--out", str(tmp_path / "one")], env=_env(cluster), capture_output=True, text=True,
-                         timeout=900)
-    assert one.returncode == 0, one.stdout + one.stderr
     extra = SLURM if launcher == "slurm" else []
     sharded = subprocess.run([*CLI, "collect", "--source", "script", "--task", "NeedleReach", "--num-episodes", "5",
                               "--shards", "2", "--out", str(tmp_path / "merged"), *extra], env=_env(cluster),
@@ -193,7 +213,7 @@ def test_sharded_collection_equals_one_process_by_seed(cluster, tmp_path, launch
     assert sharded.returncode == 0, sharded.stdout[-3000:] + sharded.stderr[-3000:]
     shards = [DatasetReader(p) for p in sorted((tmp_path / "merged.shards").glob("shard*"))]
     assert [sorted(r.episodes["seed"]) for r in shards] == [[0, 2, 4], [1, 3]]    # disjoint seeds
-    merged, single = DatasetReader(tmp_path / "merged"), DatasetReader(tmp_path / "one")
+    merged, single = DatasetReader(tmp_path / "merged"), DatasetReader(one_process)
     assert sorted(merged.episodes["seed"]) == sorted(single.episodes["seed"]) == [0, 1, 2, 3, 4]
     by_seed = dict(zip(single.episodes["seed"], single.episodes["episode_index"]))
     for seed, ep in zip(merged.episodes["seed"], merged.episodes["episode_index"]):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -149,7 +150,8 @@ def test_cli_exit_codes(clean, broken):
     path = _episodes_file(broken)
     pq.write_table(pq.read_table(path).drop_columns(["provenance/operator_id"]), path)
     cli = [sys.executable, "-m", "surrol_data.cli", "validate", "--no-lerobot", "--no-reward"]
-    bad = subprocess.run([*cli, str(broken)], cwd=REPO_ROOT, capture_output=True, text=True, timeout=120)
+    wide = {**os.environ, "COLUMNS": "250"}   # Rich folds a line at 80 columns, and a worker's tmp_path is longer
+    bad = subprocess.run([*cli, str(broken)], cwd=REPO_ROOT, capture_output=True, text=True, timeout=120, env=wide)
     assert bad.returncode == 1 and "provenance/operator_id" in bad.stdout and "1 problem(s)" in bad.stdout
-    ok = subprocess.run([*cli, str(clean)], cwd=REPO_ROOT, capture_output=True, text=True, timeout=120)
+    ok = subprocess.run([*cli, str(clean)], cwd=REPO_ROOT, capture_output=True, text=True, timeout=120, env=wide)
     assert ok.returncode == 0 and "is a valid surrol_data dataset" in ok.stdout
