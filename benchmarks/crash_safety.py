@@ -1,6 +1,7 @@
 """Crash safety of every writer path, and validation against every damage class.
 
-Usage: ``uv run python benchmarks/crash_safety.py [--trials 20] [--signal-trials 6] [--paths script merge ...]``
+Usage: ``uv run python benchmarks/crash_safety.py [--trials 20] [--signal-trials 6] [--paths script merge ...]``,
+``... --faults [--fault-sites 6]``, ``... --tmpfs``
 
 Part 1 — kills. Each writer path runs the real ``surrol-data`` command (the typer app, in a child process
 forked from this one after the heavy imports, so a trial costs seconds instead of the ~6 s lerobot import)
@@ -18,6 +19,12 @@ Part 2 — validation fuzz: every class of :mod:`surrol_data.collect.corruptions
 dataset (camera video, device traces, two data files); ``validate_dataset`` must detect each (never raise,
 never pass it), and the commands' own guard (:func:`surrol_data.datasets.guard.require_valid`) must refuse or
 repair it.
+
+Part 3 — ``--faults``: every write site of every writing path failed on purpose (:func:`fault_campaign`;
+``--fault-sites N`` samples N sites per path, the default is every site × ENOSPC, EIO and EROFS).
+
+Part 4 — ``--tmpfs``: every writing path run on a real tmpfs too small for it, then enlarged (:func:`tmpfs_campaign`;
+root, in a mount namespace of its own).
 """
 
 from __future__ import annotations
@@ -611,6 +618,7 @@ def fault_campaign(work: Path, paths: list[str], errors: list[str], console: Con
     totals = {"sites": 0, "trials": 0, "lost": 0, "duplicated": 0, "tracebacks": 0, "bad_messages": 0,
               "not_open": 0, "finished": 0}
     for path in paths:
+        started, cpu = time.monotonic(), _cpu_s()
         clean = work / f"faults_{path}_clean"
         clean.mkdir()
         args, outputs = fault_command(path, clean, bases)
@@ -651,7 +659,11 @@ def fault_campaign(work: Path, paths: list[str], errors: list[str], console: Con
         table.add_row(path, str(len(sites)), str(len(counted["sites"])), str(len(rows)), str(agg["finished"]),
                       str(agg["lost"]), str(agg["duplicated"]), str(tracebacks), f"{messages}/{len(rows)}",
                       f"{opens}/{len(rows)}")
-        console.print(f"  {path}: {len(sites)} sites, {len(rows)} trials")
+        # each path's row as soon as it is done: an exhaustive sweep takes hours, and its table comes at the end
+        console.print(f"  {path}: {len(sites)} sites, {len(counted['sites'])} calls, {len(rows)} trials, "
+                      f"{agg['finished']} finished episodes, {agg['lost']} lost, {agg['duplicated']} duplicated, "
+                      f"{tracebacks} tracebacks, {messages}/{len(rows)} one-line errors, {opens}/{len(rows)} open; "
+                      f"{time.monotonic() - started:.0f} s, {_cpu_s() - cpu:.0f} s CPU")
         totals["sites"] += len(sites)
         totals["trials"] += len(rows)
         totals["lost"] += agg["lost"]

@@ -82,6 +82,43 @@ def test_disk_full_is_one_line_and_loses_nothing(tmp_path):
     assert space["seeds"] == list(range(full["recorded"]))   # each once (a stopped close had dropped some, doubled others)
 
 
+_EXPORT = """
+import json, sys
+from pathlib import Path
+from typer.testing import CliRunner
+from surrol_data.cli import app
+from surrol_data.collect import corruptions
+base, out = Path(sys.argv[1]), Path(sys.argv[2])
+corruptions.base_dataset(base, camera=False)
+r = CliRunner().invoke(app, ["export", str(base), "--format", "robomimic", "--out", str(out)])
+print("RESULTS " + json.dumps({"code": r.exit_code, "output": r.output, "exception": None if r.exception is None
+                               or isinstance(r.exception, SystemExit) else repr(r.exception),
+                               "left": sorted(p.name for p in out.parent.iterdir())}))
+"""
+
+
+def test_an_export_onto_a_full_disk_is_one_line_and_leaves_no_file(tmp_path):
+    """h5py writing its file itself met the full tmpfs with a screen of 'Exception ignored' tracebacks, then a
+    segmentation fault, and left OUT.partial behind."""
+    why = private_mounts.skip_reason()
+    if why:
+        pytest.skip(why)
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    script = tmp_path / "export.py"
+    script.write_text(_EXPORT)
+    shell = (f"mount -t tmpfs -o size=16k tmpfs '{disk}' && '{sys.executable}' '{script}' '{tmp_path / 'base'}' "
+             f"'{disk / 'demos.hdf5'}'")
+    run = private_mounts.run(shell, timeout=600)
+    lines = [json.loads(line.removeprefix("RESULTS ")) for line in run.stdout.splitlines()
+             if line.startswith("RESULTS ")]
+    assert run.returncode == 0 and len(lines) == 1, (run.returncode, run.stdout[-2000:] + run.stderr[-3000:])
+    said = " ".join(lines[0]["output"].split())
+    assert _one_line_error(lines[0]) and lines[0]["code"] == 2 and "no space left on the disk" in said, lines[0]
+    assert "Traceback" not in run.stderr and "nothing was written to" in said, run.stderr[-2000:]
+    assert lines[0]["left"] == [], lines[0]   # no half-written file
+
+
 def _tmpfs_campaign(paths: list[str], timeout: float) -> subprocess.CompletedProcess:
     """``benchmarks/crash_safety.py --tmpfs``: each path run on a real tmpfs with room for half of what it writes,
     the tmpfs then enlarged; it exits 0 only when every path filled its tmpfs, nothing finished was lost or
