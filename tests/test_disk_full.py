@@ -54,21 +54,27 @@ def _one_line_error(result: dict) -> bool:
             and (result["code"] == 0 or (result["code"] == 2 and said.count("error:") == 1)))
 
 
-def test_disk_full_is_one_line_and_loses_nothing(tmp_path):
+def _on_a_tmpfs(tmp_path, source: str, size: str, then, timeout: float):
+    """Mount a tmpfs of ``size`` at ``tmp_path/disk`` (in a private mount namespace; the test skips where mounts cannot
+    be made), then run the shell line ``then(disk, python)`` (``python``: the script ``source``, quoted); (the run, the
+    JSON of each line the script printed after "RESULTS ")."""
     why = private_mounts.skip_reason()
     if why:
         pytest.skip(why)
     disk = tmp_path / "disk"
     disk.mkdir()
-    script = tmp_path / "commands.py"
-    script.write_text(_COMMANDS)
-    root = disk / "demos"
-    py = f"'{sys.executable}' '{script}' '{root}'"
-    shell = (f"mount -t tmpfs -o size=1m tmpfs '{disk}' && {py} full && "
-             f"mount -o remount,size=256m '{disk}' && {py} space")
-    run = private_mounts.run(shell, timeout=1200)
-    lines = [json.loads(line.removeprefix("RESULTS ")) for line in run.stdout.splitlines()
-             if line.startswith("RESULTS ")]
+    script = tmp_path / "script.py"
+    script.write_text(source)
+    run = private_mounts.run(f"mount -t tmpfs -o size={size} tmpfs '{disk}' && "
+                             + then(disk, f"'{sys.executable}' '{script}'"), timeout=timeout)
+    return run, [json.loads(line.removeprefix("RESULTS ")) for line in run.stdout.splitlines()
+                 if line.startswith("RESULTS ")]
+
+
+def test_disk_full_is_one_line_and_loses_nothing(tmp_path):
+    run, lines = _on_a_tmpfs(tmp_path, _COMMANDS, "1m", lambda disk, py: (
+        f"{py} '{disk / 'demos'}' full && mount -o remount,size=256m '{disk}' && {py} '{disk / 'demos'}' space"),
+        timeout=1200)
     assert run.returncode == 0 and len(lines) == 2, run.stdout[-3000:] + run.stderr[-3000:]
     full, space = lines
     collect = " ".join(full["collect"]["output"].split())
@@ -100,18 +106,8 @@ print("RESULTS " + json.dumps({"code": r.exit_code, "output": r.output, "excepti
 def test_an_export_onto_a_full_disk_is_one_line_and_leaves_no_file(tmp_path):
     """h5py writing its file itself met the full tmpfs with a screen of 'Exception ignored' tracebacks, then a
     segmentation fault, and left OUT.partial behind."""
-    why = private_mounts.skip_reason()
-    if why:
-        pytest.skip(why)
-    disk = tmp_path / "disk"
-    disk.mkdir()
-    script = tmp_path / "export.py"
-    script.write_text(_EXPORT)
-    shell = (f"mount -t tmpfs -o size=16k tmpfs '{disk}' && '{sys.executable}' '{script}' '{tmp_path / 'base'}' "
-             f"'{disk / 'demos.hdf5'}'")
-    run = private_mounts.run(shell, timeout=600)
-    lines = [json.loads(line.removeprefix("RESULTS ")) for line in run.stdout.splitlines()
-             if line.startswith("RESULTS ")]
+    run, lines = _on_a_tmpfs(tmp_path, _EXPORT, "16k", lambda disk, py: f"{py} '{tmp_path / 'base'}' "
+                                                                       f"'{disk / 'demos.hdf5'}'", timeout=600)
     assert run.returncode == 0 and len(lines) == 1, (run.returncode, run.stdout[-2000:] + run.stderr[-3000:])
     said = " ".join(lines[0]["output"].split())
     assert _one_line_error(lines[0]) and lines[0]["code"] == 2 and "no space left on the disk" in said, lines[0]
