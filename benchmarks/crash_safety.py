@@ -1,6 +1,7 @@
 """Crash safety of every writer path, and validation against every damage class.
 
-Usage: ``uv run python benchmarks/crash_safety.py [--trials 20] [--signal-trials 6] [--paths script merge ...]``
+Usage: ``uv run python benchmarks/crash_safety.py [--trials 20] [--signal-trials 6] [--paths script merge ...]``,
+``... --faults [--fault-sites 6]``, ``... --tmpfs``
 
 Part 1 — kills. Each writer path runs the real ``surrol-data`` command (the typer app, in a child process
 forked from this one after the heavy imports, so a trial costs seconds instead of the ~6 s lerobot import)
@@ -18,11 +19,18 @@ Part 2 — validation fuzz: every class of :mod:`surrol_data.collect.corruptions
 dataset (camera video, device traces, two data files); ``validate_dataset`` must detect each (never raise,
 never pass it), and the commands' own guard (:func:`surrol_data.datasets.guard.require_valid`) must refuse or
 repair it.
+
+Part 3 — ``--faults``: every write site of every writing path failed on purpose (:func:`fault_campaign`;
+``--fault-sites N`` samples N sites per path, the default is every site × ENOSPC, EIO and EROFS).
+
+Part 4 — ``--tmpfs``: every writing path run on a real tmpfs too small for it, then enlarged (:func:`tmpfs_campaign`;
+root, in a mount namespace of its own).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import random
 import shutil
@@ -178,12 +186,17 @@ def _still_policy(path: Path) -> Path:
     return BCPolicy(actor, Normalizer(7), Normalizer(3), BCConfig(hidden_sizes=(8,))).save(path)
 
 
-def _build_bases(work: Path) -> dict:
-    bases = {"script": work / "base_script", "haptic": work / "base_haptic",
-             "policy": _still_policy(work / "still_policy.pt")}
-    for args in (["collect", "--source", "script", "--task", TASK, "--num-episodes", "6", "--out", str(bases["script"])],
-                 ["collect", "--source", "haptic", "--device", "operator", "--skill", "expert", "--operator-id",
-                  "e1", "--task", TASK, "--num-episodes", "4", "--out", str(bases["haptic"])]):
+def _build_bases(work: Path, which: tuple[str, ...] = ("script", "haptic", "policy")) -> dict:
+    bases = {"script": work / "base_script", "haptic": work / "base_haptic"}
+    if "policy" in which:
+        bases["policy"] = _still_policy(work / "still_policy.pt")
+    for name, args in (
+            ("script", ["collect", "--source", "script", "--task", TASK, "--num-episodes", "6", "--out",
+                        str(bases["script"])]),
+            ("haptic", ["collect", "--source", "haptic", "--device", "operator", "--skill", "expert", "--operator-id",
+                        "e1", "--task", TASK, "--num-episodes", "4", "--out", str(bases["haptic"])])):
+        if name not in which:
+            continue
         _, code, _ = _run(args, work / "base.log", None, None)
         if code != 0:
             raise SystemExit(f"building a base dataset failed: see {work / 'base.log'}")
@@ -371,22 +384,36 @@ def fuzz_campaign(work: Path, console: Console) -> tuple[Table, dict]:
 # ---------------------------------------------------------------- part 3: every write site failed on purpose
 
 FAULT_PATHS = ("script", "workers", "shards", "haptic-operator", "intervene-operator", "camera", "append", "merge",
-               "filter", "split", "export", "upgrade", "repair")
+               "filter", "split", "export", "upgrade", "adopt", "repair")
 FAULT_ERRORS = ("ENOSPC", "EIO", "EROFS")
 # the dataset each path writes, relative to the trial folder, and whether it is also the input (then the episodes it
 # held before the run must all still be there)
-_IN_PLACE = ("append", "upgrade", "repair")
+_IN_PLACE = ("append", "upgrade", "adopt", "repair")
+# paths whose output is not a recording (no journal, no repair): a failed run is taken up by running it again, as its
+# error says; the trial checks that this succeeds and loses nothing
+_RUN_AGAIN = ("adopt",)
+# the base each in-place path works on (a copy of it)
+_IN_PLACE_BASE = {"append": "script", "upgrade": "schema1", "adopt": "aggregated", "repair": "killed"}
 
 
-def fault_bases(work: Path) -> dict:
-    """The inputs of the fault paths, built once (real recordings; the repair's is a killed recording: a finished
-    dataset whose journal holds two later episodes and whose last session never ended)."""
+def fault_bases(work: Path, paths=FAULT_PATHS) -> dict:
+    """The inputs of the fault ``paths``, built once (real recordings; the repair's is a killed recording: a finished
+    dataset whose journal holds two later episodes and whose last session never ended; the adoption's the script
+    base rewritten by lerobot's aggregate_datasets)."""
     import json
 
     from surrol_data.datasets import journal
     from surrol_data.datasets.reader import DatasetReader
 
-    bases = _build_bases(work)
+    which = (("script",) if set(paths) - {"upgrade"} else ()) + (("haptic",) if {"merge", "repair"} & set(paths) else
+                                                                 ()) + (("policy",) if "intervene-operator" in paths
+                                                                        else ())
+    bases = _build_bases(work, which)
+    bases["schema1"] = Path(__file__).resolve().parents[1] / "tests" / "data" / "schema1" / "needle_pick"
+    if "adopt" in paths:
+        bases["aggregated"] = _aggregated(bases["script"], work / "base_aggregated")
+    if "repair" not in paths:
+        return bases
     killed = work / "base_killed"
     shutil.copytree(bases["script"], killed)
     donor = DatasetReader(bases["haptic"])
@@ -399,17 +426,38 @@ def fault_bases(work: Path) -> dict:
     side["sessions"][-1].pop("ended_at", None)
     side_path.write_text(json.dumps(side))
     bases["killed"] = killed
-    bases["schema1"] = Path(__file__).resolve().parents[1] / "tests" / "data" / "schema1" / "needle_pick"
     return bases
+
+
+def _aggregated(source: Path, out: Path) -> Path:
+    """``source`` rewritten by lerobot's own ``aggregate_datasets`` (what ``adopt`` takes back), made in a forked
+    child so that lerobot's helper threads never start in this process, which forks every trial."""
+    pid = os.fork()
+    if pid == 0:
+        code = 1
+        try:
+            from lerobot.datasets.aggregate import aggregate_datasets
+
+            from surrol_data.datasets.hub_offline import hub_offline, local_repo_id
+
+            with hub_offline():
+                aggregate_datasets([local_repo_id(source)], local_repo_id(out), roots=[source], aggr_root=out)
+            code = 0
+        finally:
+            os._exit(code)
+    _, status = os.waitpid(pid, 0)
+    if os.waitstatus_to_exitcode(status) != 0:
+        raise SystemExit(f"aggregating {source} with lerobot's aggregate_datasets failed")
+    return out
 
 
 def fault_command(path: str, trial: Path, bases: dict) -> tuple[list[str], list[Path]]:
     """(the command's arguments, the datasets it writes) of one fault trial in the folder ``trial``."""
-    s, h, p = str(bases["script"]), str(bases["haptic"]), str(bases["policy"])
+    s, h, p = str(bases["script"]), str(bases["haptic"]), str(bases.get("policy"))
     out = trial / "out"
     reach = ["--task", TASK, "--max-steps", "15", "--keep-failures"]
     if path in _IN_PLACE:
-        shutil.copytree(bases[{"append": "script", "upgrade": "schema1", "repair": "killed"}[path]], out)
+        shutil.copytree(bases[_IN_PLACE_BASE[path]], out)
     args = {
         # 11 episodes: a checkpoint after the 10th, so the session ends by consolidating two files into one
         "script": ["collect", "--source", "script", *reach, "--num-episodes", "11", "--out", str(out)],
@@ -429,6 +477,7 @@ def fault_command(path: str, trial: Path, bases: dict) -> tuple[list[str], list[
         "split": ["split", s, "--out", str(out), "--valid-fraction", "0.3"],
         "export": ["export", s, "--format", "robomimic", "--out", str(trial / "out.hdf5")],
         "upgrade": ["upgrade", str(out)],
+        "adopt": ["adopt", str(out), "--from", s],
         "repair": ["repair", str(out)],
     }[path]
     outputs = {"split": [out / "train", out / "valid"], "export": [trial / "out.hdf5"]}.get(path, [out])
@@ -548,6 +597,8 @@ def fault_check(path: str, result: dict, outputs: list[Path], expected: dict, be
             continue
         row["lost"] += len(must - set(present))
         row["duplicated"] += sum(present.count(h) - 1 for h in set(present) if present.count(h) > 1)
+    if "again" in result and result["again"] != 0:
+        row.update(opens=False, problem=f"running the command again failed ({result['again']})")
     if path == "upgrade" and code != 0:   # the original must be as it was: all its episodes, schema 1
         row["lost"] += 0 if outputs[0].exists() else 1
     return row
@@ -559,7 +610,7 @@ def fault_campaign(work: Path, paths: list[str], errors: list[str], console: Con
     own (its first call; ``occurrences="all"``: every call). ``limit``: at most that many sites per path."""
     from surrol_data.datasets.fault_injection import distinct_sites
 
-    bases = fault_bases(work)
+    bases = fault_bases(work, paths)
     table = Table(title="Every write site failed on purpose (ENOSPC sticky for writes, EROFS sticky, EIO once)")
     for col in ("path", "sites", "calls", "trials", "finished episodes", "lost", "duplicated", "tracebacks",
                 "one-line error", "opens"):
@@ -567,6 +618,7 @@ def fault_campaign(work: Path, paths: list[str], errors: list[str], console: Con
     totals = {"sites": 0, "trials": 0, "lost": 0, "duplicated": 0, "tracebacks": 0, "bad_messages": 0,
               "not_open": 0, "finished": 0}
     for path in paths:
+        started, cpu = time.monotonic(), _cpu_s()
         clean = work / f"faults_{path}_clean"
         clean.mkdir()
         args, outputs = fault_command(path, clean, bases)
@@ -586,6 +638,10 @@ def fault_campaign(work: Path, paths: list[str], errors: list[str], console: Con
                 trial.mkdir()
                 args, outputs = fault_command(path, trial, bases)
                 result = fault_run(args, trial / "log", k, error)
+                if path in _RUN_AGAIN and result.get("code") not in (0, None) and isinstance(result.get("code"), int):
+                    # what its error says to do: run the command again (once there is space)
+                    again = fault_run(args, trial / "again.log", None, error)
+                    result["again"] = again.get("code")
                 row = fault_check(path, result, [Path(str(o).replace(str(clean), str(trial))) for o in outputs],
                                   {str(o).replace(str(clean), str(trial)): v for o, v in expected.items()},
                                   before, trial / "log")
@@ -603,7 +659,11 @@ def fault_campaign(work: Path, paths: list[str], errors: list[str], console: Con
         table.add_row(path, str(len(sites)), str(len(counted["sites"])), str(len(rows)), str(agg["finished"]),
                       str(agg["lost"]), str(agg["duplicated"]), str(tracebacks), f"{messages}/{len(rows)}",
                       f"{opens}/{len(rows)}")
-        console.print(f"  {path}: {len(sites)} sites, {len(rows)} trials")
+        # each path's row as soon as it is done: an exhaustive sweep takes hours, and its table comes at the end
+        console.print(f"  {path}: {len(sites)} sites, {len(counted['sites'])} calls, {len(rows)} trials, "
+                      f"{agg['finished']} finished episodes, {agg['lost']} lost, {agg['duplicated']} duplicated, "
+                      f"{tracebacks} tracebacks, {messages}/{len(rows)} one-line errors, {opens}/{len(rows)} open; "
+                      f"{time.monotonic() - started:.0f} s, {_cpu_s() - cpu:.0f} s CPU")
         totals["sites"] += len(sites)
         totals["trials"] += len(rows)
         totals["lost"] += agg["lost"]
@@ -613,6 +673,143 @@ def fault_campaign(work: Path, paths: list[str], errors: list[str], console: Con
         totals["bad_messages"] += len(rows) - messages
         totals["not_open"] += len(rows) - opens
     return table, totals
+
+
+# ---------------------------------------------------------------- part 4: a real small tmpfs filled during each path
+
+_PAGE = 4096
+_ROOMY = "256m"
+
+
+def _mount_tmpfs(where: Path, size: str) -> None:
+    import subprocess
+
+    done = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(where)], capture_output=True,
+                          text=True)
+    if done.returncode != 0:
+        raise SystemExit(f"cannot mount a tmpfs at {where} ({done.stderr.strip()}): run as root")
+
+
+def _remount(where: Path, size: str) -> None:
+    import subprocess
+
+    subprocess.run(["mount", "-o", f"remount,size={size}", str(where)], check=True, capture_output=True)
+
+
+def _used(where: Path) -> int:
+    st = os.statvfs(where)
+    return (st.f_blocks - st.f_bfree) * st.f_frsize
+
+
+@contextlib.contextmanager
+def _peak_use(where: Path):
+    """``[bytes]``: the most ``where``'s file system held while the block ran (sampled every 2 ms by a thread of
+    this process; the forked child it waits for is not slowed)."""
+    import threading
+
+    peak, done = [_used(where)], threading.Event()
+
+    def sample() -> None:
+        while not done.wait(0.002):
+            peak[0] = max(peak[0], _used(where))
+
+    thread = threading.Thread(target=sample, daemon=True)
+    thread.start()
+    try:
+        yield peak
+    finally:
+        done.set()
+        thread.join()
+
+
+def tmpfs_campaign(work: Path, paths: list[str], fill: float, console: Console) -> tuple[Table, dict]:
+    """Each path run on a real tmpfs too small for it: a clean run on a roomy tmpfs measures the most the path has
+    written at once (its input copied in first for a path that works in place), then a tmpfs of the input's size plus ``fill`` of
+    that is mounted, the input copied in, and the path run until the disk is full; the tmpfs is then enlarged
+    (``mount -o remount``) and the trial checked as a fault trial is (nothing finished lost or duplicated, the error
+    one line naming what is kept, no traceback, the output opens after the automatic repair). Needs its own mount
+    namespace (``main`` re-runs the script under ``unshare --mount``)."""
+    bases = fault_bases(work, paths)
+    table = Table(title=f"A real tmpfs filled during each path (room for {fill:.0%} of the most it writes at once)")
+    for col in ("path", "writes", "tmpfs", "filled", "finished episodes", "lost", "duplicated", "tracebacks",
+                "one-line error", "opens"):
+        table.add_column(col, justify="left" if col == "path" else "right")
+    totals = {"paths": 0, "filled": 0, "lost": 0, "duplicated": 0, "tracebacks": 0, "bad_messages": 0,
+              "not_open": 0, "finished": 0}
+    mounted: list[Path] = []
+    try:
+        for path in paths:
+            clean, trial = work / f"tmpfs_{path}_clean" / "disk", work / f"tmpfs_{path}" / "disk"
+            clean.mkdir(parents=True)
+            _mount_tmpfs(clean, _ROOMY)
+            mounted.append(clean)
+            args, outputs = fault_command(path, clean, bases)
+            before = _hashes(outputs[0]) if path in _IN_PLACE and path != "upgrade" else []
+            input_bytes = _used(clean)
+            with _peak_use(clean) as peak:
+                counted = fault_run(args, clean.parent / "log", None, "ENOSPC")
+            if counted.get("code") != 0:
+                raise SystemExit(f"{path}: the run on a roomy tmpfs failed ({counted.get('code')}); see "
+                                 f"{clean.parent / 'log'}")
+            written = max(peak[0], _used(clean)) - input_bytes   # the most it had on the disk at once
+            expected = {str(o): (_hashes(o) if o.suffix != ".hdf5" else list(range(6))) for o in outputs}
+            size = input_bytes + max(_PAGE, int(written * fill) // _PAGE * _PAGE)
+            trial.mkdir(parents=True)
+            _mount_tmpfs(trial, str(size))
+            mounted.append(trial)
+            args, outputs = fault_command(path, trial, bases)
+            result = fault_run(args, trial.parent / "log", None, "ENOSPC")
+            _remount(trial, _ROOMY)   # the disk enlarged: what the error said to do can now be done
+            filled = result.get("code") != 0
+            if path in _RUN_AGAIN and filled and isinstance(result.get("code"), int):
+                result["again"] = fault_run(args, trial.parent / "again.log", None, "ENOSPC").get("code")
+            row = fault_check(path, result, [Path(str(o).replace(str(clean), str(trial))) for o in outputs],
+                              {str(o).replace(str(clean), str(trial)): v for o, v in expected.items()}, before,
+                              trial.parent / "log")
+            said = " ".join((trial.parent / "log").read_text(errors="replace").split())
+            if filled and "no space left on the disk" not in said:
+                row.update(message_ok=False, problem=row["problem"] or "the error does not say the disk is full")
+            finished = len(result.get("finished", []))
+            bad = row["lost"] or row["duplicated"] or row["traceback"] or not row["message_ok"] or not row["opens"]
+            if bad or not filled:
+                console.print(f"  {path}: {'filled' if filled else 'NOT filled (it fit)'} {row} log "
+                              f"{trial.parent / 'log'}")
+            table.add_row(path, f"{written / 1e3:.0f} kB", f"{size / 1e3:.0f} kB", "yes" if filled else "no",
+                          str(finished), str(row["lost"]), str(row["duplicated"]), str(int(row["traceback"])),
+                          "yes" if row["message_ok"] else "no", "yes" if row["opens"] else "no")
+            for key in ("lost", "duplicated"):
+                totals[key] += row[key]
+            totals["paths"] += 1
+            totals["filled"] += filled
+            totals["finished"] += finished
+            totals["tracebacks"] += row["traceback"]
+            totals["bad_messages"] += not row["message_ok"]
+            totals["not_open"] += not row["opens"]
+    finally:
+        import subprocess
+
+        for where in reversed(mounted):
+            subprocess.run(["umount", "-l", str(where)], capture_output=True)
+    return table, totals
+
+
+def _cpu_s() -> float:
+    """CPU seconds of this process and of its finished children (each trial is a forked child)."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+def _in_private_mounts(argv: list[str]) -> None:
+    """Run this script again in a mount namespace of its own (``unshare --mount``: root), so its tmpfs mounts are
+    nobody else's and vanish with it whatever happens; exits with its status."""
+    import shutil as which
+    import subprocess
+
+    if which.which("unshare") is None:
+        raise SystemExit("--tmpfs needs unshare (util-linux) and root")
+    done = subprocess.run(["unshare", "--mount", "--propagation", "private", sys.executable, *argv,
+                           "--in-private-mounts"])
+    raise SystemExit(done.returncode)
 
 
 def main() -> None:
@@ -628,8 +825,16 @@ def main() -> None:
     parser.add_argument("--fault-paths", nargs="+", default=list(FAULT_PATHS), choices=FAULT_PATHS)
     parser.add_argument("--fault-errors", nargs="+", default=list(FAULT_ERRORS), choices=FAULT_ERRORS)
     parser.add_argument("--fault-sites", type=int, default=None, help="at most this many sites per path, spread over the run (a quick look)")
+    parser.add_argument("--tmpfs", action="store_true", help="only part 4: fill a real small tmpfs during each path "
+                                                                 "(root: its own mount namespace)")
+    parser.add_argument("--tmpfs-paths", nargs="+", default=list(FAULT_PATHS), choices=FAULT_PATHS)
+    parser.add_argument("--tmpfs-fill", type=float, default=0.5,
+                        help="room on the tmpfs, as a fraction of what the path writes")
+    parser.add_argument("--in-private-mounts", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     console = Console(width=150)
+    if args.tmpfs and not args.in_private_mounts:
+        _in_private_mounts(sys.argv)
 
     # Heavy imports once, before any fork: each trial then costs only its own work.
     import lerobot.datasets.lerobot_dataset  # noqa: F401
@@ -642,14 +847,31 @@ def main() -> None:
     work = Path(tempfile.mkdtemp(prefix="crash_safety_"))
     ok = True
     try:
+        if args.tmpfs:
+            import h5py  # noqa: F401  (imported before the fork, as for the fault campaign)
+
+            console.print(f"tmpfs campaign in {work} ...")
+            t0, c0 = time.monotonic(), _cpu_s()
+            table, totals = tmpfs_campaign(work, args.tmpfs_paths, args.tmpfs_fill, console)
+            console.print(table)
+            console.print(f"{totals['paths']} paths on a real tmpfs, {totals['filled']} filled it, in "
+                          f"{time.monotonic() - t0:.0f} s ({_cpu_s() - c0:.0f} s CPU): {totals['finished']} finished episodes, {totals['lost']} "
+                          f"lost, {totals['duplicated']} duplicated, {totals['tracebacks']} tracebacks, "
+                          f"{totals['bad_messages']} errors not one line naming what is kept, {totals['not_open']} "
+                          "outputs that do not open")
+            ok &= not (totals["lost"] or totals["duplicated"] or totals["tracebacks"] or totals["bad_messages"]
+                       or totals["not_open"]) and totals["filled"] == totals["paths"]
+            args.no_kills = args.no_fuzz = True
+            args.faults = False
         if args.faults:
             import h5py  # noqa: F401  (imported before the fork, so that the injector wraps its File)
 
             console.print(f"fault campaign in {work} ...")
-            t0 = time.monotonic()
+            t0, c0 = time.monotonic(), _cpu_s()
             table, totals = fault_campaign(work, args.fault_paths, args.fault_errors, console, args.fault_sites)
             console.print(table)
-            console.print(f"{totals['sites']} write sites, {totals['trials']} trials in {time.monotonic() - t0:.0f} s: "
+            console.print(f"{len(args.fault_paths)} paths, {totals['sites']} write sites, {totals['trials']} trials in "
+                          f"{time.monotonic() - t0:.0f} s ({_cpu_s() - c0:.0f} s CPU, trials included): "
                           f"{totals['finished']} finished episodes, {totals['lost']} lost, {totals['duplicated']} "
                           f"duplicated, {totals['tracebacks']} tracebacks, {totals['bad_messages']} errors not one "
                           f"line naming what is kept, {totals['not_open']} outputs that do not open")

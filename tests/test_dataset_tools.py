@@ -166,6 +166,29 @@ def test_merge_keeps_every_provenance_column(dataset, tmp_path):
     assert "## Derived from" in card and "surrol-data merge merged a b" in card and "| expert | surgeon1 | no | 3 |" in card
 
 
+def test_merge_keeps_an_unknown_duration_unknown_and_valid(dataset, tmp_path):
+    """An episode whose wall time was not measured has duration_s NaN; lerobot's aggregation (pandas) made it a null,
+    which validate refuses (provenance never holds None): the merged dataset must validate and still say NaN."""
+    from surrol_data.datasets.merge import merge_datasets
+    from surrol_data.datasets.recorder import DatasetRecorder
+    from surrol_data.datasets.schema import frame_features
+    from surrol_data.datasets.validate import validate_dataset
+
+    _, trajs = dataset
+    inputs = []
+    for name, seeds in (("a", (0, 1)), ("b", (2,))):
+        inputs.append(tmp_path / name)
+        with DatasetRecorder(inputs[-1], features=frame_features(trajs[0].observation.shape[1], 3, 5, 1), task=TASK,
+                             env_id=ENV_ID, task_description="reach", handle_signals=False) as rec:
+            for seed in seeds:   # no duration_s: unknown
+                rec.record(trajs[seed], {"source": "script", "device": "none", "skill": "scripted", "seed": seed})
+    assert np.isnan(DatasetReader(inputs[0]).episodes["duration_s"].astype(float)).all()
+    out = merge_datasets(tmp_path / "merged", inputs, progress=False)
+    assert validate_dataset(out, check_reward=False) == []
+    durations = DatasetReader(out).episodes["duration_s"]
+    assert durations.dtype == np.float64 and np.isnan(durations).all()
+
+
 def test_merge_refuses_incompatible_inputs(dataset, tmp_path):
     from surrol_data.datasets.recorder import DatasetRecorder
     from surrol_data.datasets.merge import merge_datasets

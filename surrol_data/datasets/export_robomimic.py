@@ -79,55 +79,63 @@ def export_robomimic(src: str | Path, out: str | Path, *, where: str | None = No
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(out.name + ".partial")
     total = 0
-    with h5py.File(tmp, "w") as f:
-        data = f.create_group("data")
-        for i, ep in enumerate(tqdm(episodes, desc=f"export robomimic {out.name}", unit="ep", disable=not progress)):
-            traj = reader.trajectory(ep, images=bool(cameras))
-            name = f"demo_{i}"
-            demo = data.create_group(name)
-            n = len(traj)
-            obs = {"observation": traj.observation, "achieved_goal": traj.achieved_goal,
-                   "desired_goal": traj.desired_goal}
-            for cam in cameras:  # robomimic's image modality: keys ending in "_image", (N, H, W, 3) uint8
-                obs[f"{cam}_image"] = traj.images[cam]
-            for key, values in obs.items():
-                demo.create_dataset(f"obs/{key}", data=values[:-1])
-                demo.create_dataset(f"next_obs/{key}", data=values[1:])
-            dones = traj.terminated.astype(np.int64)
-            dones[-1] = 1  # robomimic marks the end of each demo as done
-            demo.create_dataset("actions", data=traj.action)
-            demo.create_dataset("rewards", data=traj.reward.astype(np.float64))
-            demo.create_dataset("dones", data=dones)
-            demo.create_dataset("states", data=traj.observation[:-1])
-            if traj.policy_action is not None:   # robomimic reads none of these; HIL learners (HG-DAgger) do
-                arms = traj.flags[INTERVENTION].reshape(n, -1)
-                demo.create_dataset("is_intervention", data=arms.any(axis=1).astype(np.float32))
-                demo.create_dataset("intervention_arms", data=arms.astype(np.uint8))
-                demo.create_dataset("policy_actions", data=traj.policy_action)
-            demo.attrs["num_samples"] = n
-            demo.attrs["episode_index"] = int(ep)
-            row = rows.loc[ep]
-            for key in PROVENANCE_COLUMNS:
-                value = row[key]
-                demo.attrs[key] = value.item() if isinstance(value, np.generic) else value
-            total += n
-            split = "train" if ep in is_train else "valid"
-            masks[split].append(name)
-            for key in (mask_name("skill", row["skill"]), mask_name("operator", row["operator_id"]),
-                        mask_name("source", row["source"])) + (("successful",) if bool(row["success"]) else ()):
-                masks.setdefault(key, []).append(name)
-                masks.setdefault(f"{key}_{split}", []).append(name)
-        data.attrs["total"] = total
-        env_kwargs = {}
-        if cameras:  # rollouts inside robomimic need the same image in the observation
-            h, w = reader.features[f"observation.images.{cameras[0]}"]["shape"][:2]
-            env_kwargs = {"camera": True, "camera_size": [int(w), int(h)]}
-        data.attrs["env_args"] = json.dumps({"env_name": env_id, "type": GYM_ENV_TYPE, "env_kwargs": env_kwargs})
-        data.attrs["surrol_data"] = json.dumps({"source": str(Path(src).resolve()), "where": where or "",
-                                                "task": side.get("task", ""), "split_seed": seed,
-                                                "valid_fraction": valid_fraction})
-        group = f.create_group("mask")
-        for key, names in sorted(masks.items()):
-            group.create_dataset(key, data=np.array(names, dtype="S"))
+    # HDF5 is given a Python file to write through: its own (C) writes meet a full disk with errors it can only print
+    # ("Exception ignored in ObjectID.__dealloc__") and then a segmentation fault; through Python the failed write
+    # is the OSError it is, and the half-written file is removed
+    try:
+        with open(tmp, "w+b") as fh, h5py.File(fh, "w") as f:
+            data = f.create_group("data")
+            for i, ep in enumerate(tqdm(episodes, desc=f"export robomimic {out.name}", unit="ep",
+                                        disable=not progress)):
+                traj = reader.trajectory(ep, images=bool(cameras))
+                name = f"demo_{i}"
+                demo = data.create_group(name)
+                n = len(traj)
+                obs = {"observation": traj.observation, "achieved_goal": traj.achieved_goal,
+                       "desired_goal": traj.desired_goal}
+                for cam in cameras:  # robomimic's image modality: keys ending in "_image", (N, H, W, 3) uint8
+                    obs[f"{cam}_image"] = traj.images[cam]
+                for key, values in obs.items():
+                    demo.create_dataset(f"obs/{key}", data=values[:-1])
+                    demo.create_dataset(f"next_obs/{key}", data=values[1:])
+                dones = traj.terminated.astype(np.int64)
+                dones[-1] = 1  # robomimic marks the end of each demo as done
+                demo.create_dataset("actions", data=traj.action)
+                demo.create_dataset("rewards", data=traj.reward.astype(np.float64))
+                demo.create_dataset("dones", data=dones)
+                demo.create_dataset("states", data=traj.observation[:-1])
+                if traj.policy_action is not None:   # robomimic reads none of these; HIL learners (HG-DAgger) do
+                    arms = traj.flags[INTERVENTION].reshape(n, -1)
+                    demo.create_dataset("is_intervention", data=arms.any(axis=1).astype(np.float32))
+                    demo.create_dataset("intervention_arms", data=arms.astype(np.uint8))
+                    demo.create_dataset("policy_actions", data=traj.policy_action)
+                demo.attrs["num_samples"] = n
+                demo.attrs["episode_index"] = int(ep)
+                row = rows.loc[ep]
+                for key in PROVENANCE_COLUMNS:
+                    value = row[key]
+                    demo.attrs[key] = value.item() if isinstance(value, np.generic) else value
+                total += n
+                split = "train" if ep in is_train else "valid"
+                masks[split].append(name)
+                for key in (mask_name("skill", row["skill"]), mask_name("operator", row["operator_id"]),
+                            mask_name("source", row["source"])) + (("successful",) if bool(row["success"]) else ()):
+                    masks.setdefault(key, []).append(name)
+                    masks.setdefault(f"{key}_{split}", []).append(name)
+            data.attrs["total"] = total
+            env_kwargs = {}
+            if cameras:  # rollouts inside robomimic need the same image in the observation
+                h, w = reader.features[f"observation.images.{cameras[0]}"]["shape"][:2]
+                env_kwargs = {"camera": True, "camera_size": [int(w), int(h)]}
+            data.attrs["env_args"] = json.dumps({"env_name": env_id, "type": GYM_ENV_TYPE, "env_kwargs": env_kwargs})
+            data.attrs["surrol_data"] = json.dumps({"source": str(Path(src).resolve()), "where": where or "",
+                                                    "task": side.get("task", ""), "split_seed": seed,
+                                                    "valid_fraction": valid_fraction})
+            group = f.create_group("mask")
+            for key, names in sorted(masks.items()):
+                group.create_dataset(key, data=np.array(names, dtype="S"))
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     tmp.replace(out)  # a half-written export never carries the final name
     return out

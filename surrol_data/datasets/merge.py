@@ -309,6 +309,7 @@ def _aggregate(readers: list[DatasetReader], out: Path, shared: dict, *, command
                                    aggr_root=lerobot_root(staging) / built.name)
             _restore_frame_types(built, readers[0].root)
             _point_episode_rows_at_their_files(built)
+            _unknown_floats_back_to_nan(built)
             provenance_of, offset = [], 0
             for reader in readers:
                 for ep in reader.select():
@@ -385,6 +386,36 @@ def _point_episode_rows_at_their_files(root: Path) -> None:
                 at = table.column_names.index(column)
                 typ = table.schema.field(column).type
                 table = table.set_column(at, table.schema.field(column), pa.array([value] * table.num_rows, typ))
+        tmp = path.with_name(path.name + ".tmp")
+        pq.write_table(table, tmp)
+        os.replace(tmp, path)
+
+
+def _unknown_floats_back_to_nan(root: Path) -> None:
+    """aggregate_datasets passes the episodes metadata through pandas, which turns a float NaN (our "unknown", e.g.
+    the ``duration_s`` of an episode whose wall time was not measured) into a null; provenance never holds a null
+    (validate refuses it, and the seal was taken over the NaN). Put the NaN back in every float provenance column."""
+    import os
+
+    import pyarrow as pa
+    import pyarrow.compute as pc
+    import pyarrow.parquet as pq
+
+    from surrol_data.datasets.reader import EPISODES_DIR, parquet_files
+    from surrol_data.datasets.schema import PROVENANCE_PREFIX
+
+    for path in parquet_files(root, EPISODES_DIR):
+        table = pq.read_table(path)
+        nulls = [name for name, field in zip(table.column_names, table.schema, strict=True)
+                 if name.startswith(PROVENANCE_PREFIX) and pa.types.is_floating(field.type)
+                 and table.column(name).null_count]
+        if not nulls:
+            continue
+        for name in nulls:
+            at = table.column_names.index(name)
+            column = table.column(name)
+            table = table.set_column(at, table.schema.field(name), pc.fill_null(column, pa.scalar(float("nan"),
+                                                                                               column.type)))
         tmp = path.with_name(path.name + ".tmp")
         pq.write_table(table, tmp)
         os.replace(tmp, path)
