@@ -31,6 +31,19 @@ class OracleEpisode:
     grasped: np.ndarray        # (T, ...) info["grasped"] (False where a task has no grasp)
 
 
+def oracle_until(task: str, seed: int, reached, steps: int = 50):
+    """A fresh ``SurRoL/<task>-v0`` under its oracle until ``reached(unwrapped_env)`` holds (at most ``steps``
+    steps): (env, its unwrapped env, the last observation, the last info)."""
+    env = gym.make(f"SurRoL/{task}-v0")
+    u = env.unwrapped
+    obs, info = env.reset(seed=seed)
+    for _ in range(steps):
+        obs, _, _, _, info = env.step(u.oracle_action(obs))
+        if reached(u):
+            return env, u, obs, info
+    pytest.fail(f"{task} seed {seed}: the oracle never reached the state the test needs in {steps} steps")
+
+
 def run_oracle(env, seed: int, steps: int | None = None) -> OracleEpisode:
     """The oracle for ``steps`` steps (default: the horizon), stopping early if the episode ends."""
     obs, info = env.reset(seed=seed)

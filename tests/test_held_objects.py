@@ -15,6 +15,7 @@ from surrol_data.envs.units import SCALING
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import physics_realism  # noqa: E402
+from oracle_episode import oracle_until  # noqa: E402
 
 _LIMIT_M = 1e-3
 
@@ -88,13 +89,7 @@ def test_a_needle_whipped_round_in_the_hand_is_not_dropped_for_a_slip_it_did_not
 
 def _needle_welded(seed: int = 6):
     """NeedlePick under its oracle until the needle is welded in the hand: (env, its unwrapped env, the last info)."""
-    env = gym.make("SurRoL/NeedlePick-v0")
-    u = env.unwrapped
-    obs, info = env.reset(seed=seed)
-    for _ in range(50):
-        obs, _, _, _, info = env.step(u.oracle_action(obs))
-        if u.grasp.welded:
-            break
+    env, u, _, info = oracle_until("NeedlePick", seed, lambda u: u.grasp.welded)
     return env, u, info
 
 

@@ -21,6 +21,8 @@ from surrol_data.datasets.guard import require_valid
 from surrol_data.datasets.reader import DatasetError
 from surrol_data.datasets.validate import validate_dataset
 
+from dataset_forgery import drop_seals
+
 
 @pytest.fixture(scope="module")
 def base(tmp_path_factory) -> Path:
@@ -76,13 +78,7 @@ def test_edited_provenance_is_reported_naming_the_episode(copy, column, value):
 
 def test_trace_cross_check_catches_an_edit_in_an_unsealed_dataset(copy):
     """A dataset recorded before seals existed: its device traces still contradict an edited operator."""
-    for path in sorted((copy / "meta" / "episodes").rglob("*.parquet")):
-        table = pq.read_table(path)
-        pq.write_table(table.drop_columns([c for c in table.column_names if c.startswith("seal/")]), path)
-    side_path = copy / "meta" / "surrol_data.json"
-    side = json.loads(side_path.read_text())
-    side.pop("seals")
-    side_path.write_text(json.dumps(side))
+    drop_seals(copy)
     assert _cheap(copy) == []  # unsealed is allowed (older datasets)
     _edit_provenance(copy, "provenance/operator_id", "e2", row=0)
     (problem,) = _cheap(copy)

@@ -12,20 +12,14 @@ from surrol_data.envs.physics import pb
 from surrol_data.envs.psm import EEF_LINK
 from surrol_data.envs.units import SCALING
 
-from oracle_episode import run_oracle
+from oracle_episode import oracle_until, run_oracle
 
 CLOSE = np.array([0.0, 0.0, 0.0, 0.0, -1.0], np.float32)
 
 
 def _carrying(seed: int = 0):
-    env = gym.make("SurRoL/GauzeRetrieve-v0")
-    u = env.unwrapped
-    obs, info = env.reset(seed=seed)
-    for _ in range(50):
-        obs, _, _, _, info = env.step(u.oracle_action(obs))
-        if u.grasp.carried:
-            return env, u, obs, info
-    pytest.fail("the oracle's gauze was never carried")
+    """GauzeRetrieve under its oracle until the gauze is carried kinematically: (env, unwrapped, obs, info)."""
+    return oracle_until("GauzeRetrieve", seed, lambda u: u.grasp.carried)
 
 
 def _others(u) -> list[int]:
