@@ -23,7 +23,8 @@ then give rough input with that hand's jaw kept closed; ``chatter`` closes and l
 counts tip-pinch lifts.
 
 Per episode it also counts objects that end below their support (centre of mass under the floor they rest on)
-or out of the workspace, objects left inside a static body (> 1 mm at the end), drops (a grasp lost while the
+or out of the workspace (off the table), objects never held that end outside every tool tip's clip box ("pushed
+out", out of reach; with how far beyond, mm), objects left inside a static body (> 1 mm at the end), drops (a grasp lost while the
 jaw was still commanded closed), and grasps made when the object was not between the blades. Steps/s exclude
 the probe's own time. Everything prints as one table.
 """
@@ -88,6 +89,8 @@ class Result:
     overlap: dict = field(default_factory=lambda: {k: 0.0 for k in OVERLAP_CLASSES})
     below_support: int = 0
     out_of_workspace: int = 0
+    pushed_out: int = 0             # objects never held that ended outside every tool tip's clip box (out of reach)
+    pushed_out_by: float = 0.0      # ... the farthest of them beyond it (real metres)
     left_inside: int = 0
     grasps: int = 0
     grasps_not_between: int = 0
@@ -122,6 +125,7 @@ class Probe:
         self.step_slip: dict[int, float] = {}   # per arm, the largest slip of its held object during this step
         self.step_touch: set[int] = set()       # tools that touched anything during this step
         self.held = {"blade": 0.0, "static": 0.0}   # a held object's deepest overlap with its hand's blades / statics
+        self.held_ever: set[int] = set()        # objects a hand has held this episode (timed_step notes them)
         self.time = 0.0
 
     def attach(self, env) -> None:
@@ -287,6 +291,20 @@ def check_end(task: str, probe: Probe, res: Result) -> None:
             res.out_of_workspace += 1
         if any(probe.deepest(obj, s) > INSIDE_TOLERANCE_M for s in probe.static):
             res.left_inside += 1
+        if obj not in probe.held_ever:
+            # Pushed, never held: it must stay where a tool tip can still go (a held object reaches past the tip it
+            # hangs from, and a dropped one lands where it falls; drops are counted).
+            beyond = min(max(float(np.max(lo - pos[:2])), float(np.max(pos[:2] - hi)), 0.0)
+                         for lo, hi in tip_boxes(probe.env))
+            if beyond > 0.0:
+                res.pushed_out += 1
+                res.pushed_out_by = max(res.pushed_out_by, beyond)
+
+
+def tip_boxes(env) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Each arm's tip clip box in xy (low, high corners; real metres): its workspace and the target margin."""
+    spaces = getattr(env, "WORKSPACES", (WORKSPACE,))
+    return [(ws[:2, 0] - WORKSPACE_MARGIN[:2, 0], ws[:2, 1] + WORKSPACE_MARGIN[:2, 1]) for ws in spaces]
 
 
 # ---------------------------------------------------------------------- runs
@@ -299,6 +317,7 @@ def timed_step(env, action, res: Result, probe: Probe, jaw_closing: list[bool]):
     res.step_time += (time.perf_counter() - t0) - (probe.time - p0)
     res.steps += 1
     u = env.unwrapped
+    probe.held_ever.update(g.object_id for g, was in zip(grasps_of(u), before) if was or g.attached)
     for k, (g, was, closing) in enumerate(zip(grasps_of(u), before, jaw_closing)):
         if g.attached and not was:
             res.grasps += 1
@@ -435,6 +454,7 @@ def run_drops(task: str, episodes: int) -> Result:
         c.resetBasePositionAndOrientation(u.object_id, (pos * SCALING).tolist(), quat)
         c.resetBaseVelocity(u.object_id, [0, 0, 0], [0, 0, 0])
         c.changeDynamics(u.object_id, -1, activationState=c.ACTIVATION_STATE_WAKE_UP)
+        probe.held_ever.add(u.object_id)   # placed by the test where it falls (PegTransfer: beyond the tip's box), not pushed
         for _ in range(12):
             timed_step(env, np.array([0, 0, 0, 0, 1.0]), res, probe, [False])
     return res
@@ -617,7 +637,7 @@ def print_table(results: list[Result], episodes: int) -> None:
                         "max over every physics substep; targets: overlap ≤ 1.0, slip ≤ 2 or a counted drop, "
                         "0 tunnelled / inside / not-between grasps, tracking ≤ 10 %)")
     cols = ["task", "run", "tool↔static", "tool↔object", "object↔static", "object↔object", "below support",
-            "out of ws", "left inside", "grasps", "not between", "drops", "max slip", "held↔blade",
+            "out of ws", "pushed out", "left inside", "grasps", "not between", "drops", "max slip", "held↔blade",
             "held↔static", "tip-pinches", "tip-pinch lifts", "tracking err",
             "success", "steps/s"]
     for col in cols:
@@ -632,7 +652,9 @@ def print_table(results: list[Result], episodes: int) -> None:
             return f"[red]{n}[/red]" if n else "0"
 
         table.add_row(r.task, r.run, *(mm(r.overlap[k]) for k in OVERLAP_CLASSES),
-                      count(r.below_support), count(r.out_of_workspace), count(r.left_inside), str(r.grasps),
+                      count(r.below_support), count(r.out_of_workspace),
+                      f"[red]{r.pushed_out} ({1000 * r.pushed_out_by:.1f})[/red]" if r.pushed_out else "0",
+                      count(r.left_inside), str(r.grasps),
                       count(r.grasps_not_between), str(r.drops), mm(r.max_slip, 2.0), mm(r.held_blade),
                       mm(r.held_static), f"{r.pinches}/{CHATTER_CLOSURES * r.episodes}" if r.run == "chatter" else "—",
                       count(r.tip_pinch_lifts),

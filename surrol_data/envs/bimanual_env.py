@@ -61,6 +61,7 @@ class BimanualEnv(PsmEnv):
     WORKSPACES = (np.array([[0.50, 0.60], [0.0, 0.05], [0.675, 0.745]]),
                   np.array([[0.50, 0.60], [-0.05, 0.0], [0.675, 0.745]]))
     HELD_AT_START: int | None = None        # index of the arm that holds the object when an episode starts
+    OBJECT_TRAVEL_PER_STEP_M = physics.MAX_OBJECT_TRAVEL_PER_STEP_M   # the adaptive sub-steps' limit (physics.py)
     ORACLE_GAIN = 0.5
 
     def __init__(self, render_mode: str | None = None, **kwargs):
@@ -109,7 +110,8 @@ class BimanualEnv(PsmEnv):
         self.grasps = tuple(Grasp(self.client, psm, self.object_id, self.grasp_lift_condition) for psm in self.psms)
         for grasp in self.grasps:   # each hand knows the other's, for the hand-over (one constraint at a time)
             grasp.peers = tuple(g for g in self.grasps if g is not grasp)
-        self._substeps = SubstepPlanner(self.client, self.grasps, self.dynamic_bodies)
+        self._substeps = SubstepPlanner(self.client, self.grasps, self.dynamic_bodies,
+                                        object_travel_m=self.OBJECT_TRAVEL_PER_STEP_M)
 
     # ------------------------------------------------------------------ Gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None):

@@ -79,6 +79,33 @@ def make_table(client, visual: bool = True) -> int:
     return _box(client, TABLE_HALF_EXTENTS, TABLE_COLOUR, position_m=TABLE_CENTRE, visual=visual)
 
 
+# A rim on the table around the tool tip's clip box, for scenes whose objects lie loose on the table: a jack pushed
+# by the blades' sides leads the clipped tip by its own reach, and ended up to 8.4 mm beyond the box (PickAndPlace,
+# bang-bang seed 2), out of the tool's reach. Its inner faces stand on the box's edges; as tall as the colour trays'.
+RIM_HEIGHT = 0.007
+RIM_THICKNESS = 0.002
+RIM_COLOUR = (0.55, 0.55, 0.58, 1.0)
+
+
+def make_rim(client, box_xy, visual: bool = True) -> int:
+    """A static rim standing on the table, its four walls' inner faces on the edges of ``box_xy`` ([[x0, x1], [y0,
+    y1]], real metres)."""
+    (x0, x1), (y0, y1) = box_xy
+    t, h = RIM_THICKNESS / 2, RIM_HEIGHT / 2
+    cx, cy, ox, oy = (x0 + x1) / 2, (y0 + y1) / 2, (x1 - x0) / 2 + 2 * t, (y1 - y0) / 2
+    walls = [((ox, t, h), (0.0, oy + t, h)), ((ox, t, h), (0.0, -oy - t, h)),
+             ((t, oy, h), (ox - t, 0.0, h)), ((t, oy, h), (-ox + t, 0.0, h))]
+    half = [(np.asarray(e) * SCALING).tolist() for e, _ in walls]
+    centres = [(np.asarray(c) * SCALING).tolist() for _, c in walls]
+    col = client.createCollisionShapeArray([pb.GEOM_BOX] * 4, halfExtents=half, collisionFramePositions=centres)
+    vis = client.createVisualShapeArray([pb.GEOM_BOX] * 4, halfExtents=half, visualFramePositions=centres,
+                                        rgbaColors=[RIM_COLOUR] * 4) if visual else -1
+    body = client.createMultiBody(0.0, col, vis, (np.array([cx, cy, TABLE_TOP_Z]) * SCALING).tolist(),
+                                  useMaximalCoordinates=True)
+    client.changeDynamics(body, -1, lateralFriction=physics.OBJECT_FRICTION, activationState=pb.ACTIVATION_STATE_SLEEP)
+    return body
+
+
 def make_tray(client, with_pad: bool, origin_m=TRAY_ORIGIN, visual: bool = True) -> int:
     """A static tray: thin base, four low walls and (optionally) a foam pad, as one compound body.
 

@@ -36,6 +36,7 @@ class NeedleRegrasp(BimanualEnv):
     WORKSPACES = (np.array([[0.55, 0.60], [0.01, 0.08], [0.695, 0.745]]),
                   np.array([[0.55, 0.60], [-0.08, -0.01], [0.695, 0.745]]))
     HELD_AT_START = 0
+    OBJECT_TRAVEL_PER_STEP_M = physics.NEEDLE_TRAVEL_PER_STEP_M   # a landed needle rocks (physics.py)
     ORACLE_GAIN = 0.5
     GOAL_SIGMA_M = 0.005
     NEEDLE_ROLL_RANGE = np.deg2rad(15.0)    # the reference's needle pitch U(−105°, −75°) about its upright pose
