@@ -117,11 +117,12 @@ def _run_numbers(folder: Path) -> tuple[str, str]:
     return metrics.to_csv(index=False), pd.read_csv(folder / "eval_episodes.csv").to_csv(index=False)
 
 
-def _study_on_slurm_equals_local(cluster, tmp_path: Path, sources: list[str]) -> None:
+def _study_on_slurm_equals_local(cluster, tmp_path: Path, sources: list[str], cancel_first: bool = False) -> None:
     """table1_quick (one seed, ``sources``) on SLURM, one job per run, against the same runs trained here one at a
     time (`--next 1`: a batch of one, as each job trains; a local batch of several differs from single runs by
     floating-point rounding, docs/training.md#batched-path): every metric of every epoch and every evaluation
-    episode equal, and so the report's Table I."""
+    episode equal, and so the report's Table I. ``cancel_first``: the first submission's jobs are cancelled;
+    ``--report`` shows them failed, and the same command submits them again."""
     from typer.testing import CliRunner
 
     from surrol_data.cli import app
@@ -137,10 +138,24 @@ def _study_on_slurm_equals_local(cluster, tmp_path: Path, sources: list[str]) ->
     # the same demo sets: built once here and copied (each job checks them against the hashes the runs record)
     on_slurm.mkdir()
     subprocess.run(["cp", "-r", str(local / "demos"), str(on_slurm / "demos")], check=True)
+    if cancel_first:
+        first = subprocess.run([*CLI, "study", "table1_quick", "--out", str(on_slurm), *quick, *SLURM], env=env,
+                               capture_output=True, text=True, timeout=600)
+        assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
+        jobs = [json.loads(line) for line in (on_slurm / "slurm" / "jobs.jsonl").read_text().splitlines()]
+        subprocess.run(["scancel", *(j["job_id"] for j in jobs)], env=cluster.env, check=True)
+        cluster.wait_empty()
+        report = subprocess.run([*CLI, "study", "table1_quick", "--out", str(on_slurm), *quick, "--report"], env=env,
+                                capture_output=True, text=True, timeout=600)
+        assert report.returncode == 0, report.stdout + report.stderr
+        for source in sources:
+            assert re.search(rf"{source}/0\s.*failed", report.stdout), report.stdout
     submitted = subprocess.run([*CLI, "study", "table1_quick", "--out", str(on_slurm), *quick, *SLURM, "--wait"],
                                env=env, capture_output=True, text=True, timeout=3600)
     assert submitted.returncode == 0, submitted.stdout[-3000:] + submitted.stderr[-3000:]
     assert f"submitted {len(sources)} SLURM job(s), one per run" in submitted.stdout
+    if cancel_first:
+        assert len((on_slurm / "slurm" / "jobs.jsonl").read_text().splitlines()) == 2 * len(sources)
     runs = sorted(p.parent.relative_to(on_slurm / "runs").as_posix() for p in (on_slurm / "runs").rglob("run.json"))
     assert runs == sorted(f"{source}/seed0" for source in sources)
     assert not any((on_slurm / ".work").rglob("checkpoint.pt"))     # no run left half-trained
@@ -155,9 +170,10 @@ def _study_on_slurm_equals_local(cluster, tmp_path: Path, sources: list[str]) ->
     assert again.returncode == 0 and "nothing to submit" in again.stdout, again.stdout + again.stderr
 
 
-def test_a_study_run_on_slurm_gives_the_local_numbers(cluster, tmp_path):
-    """One run (script/0) in one job: what the whole study below shows, at a third of its cost, in the default run."""
-    _study_on_slurm_equals_local(cluster, tmp_path, ["script"])
+def test_a_study_run_cancelled_on_slurm_is_shown_failed_resubmitted_and_gives_the_local_numbers(cluster, tmp_path):
+    """One run (script/0) in one job, cancelled, then submitted again: what the two tests below show (the whole study,
+    and a failed job beside a finished one), at a third of their cost, in the default run."""
+    _study_on_slurm_equals_local(cluster, tmp_path, ["script"], cancel_first=True)
 
 
 @pytest.mark.slow
@@ -166,6 +182,7 @@ def test_the_study_on_slurm_gives_the_local_numbers(cluster, tmp_path):
     _study_on_slurm_equals_local(cluster, tmp_path, ["script", "novice", "expert"])
 
 
+@pytest.mark.slow
 def test_a_failed_study_job_is_shown_and_resubmitted_alone(cluster, tmp_path):
     """One run's job is cancelled: --report shows it failed, and the same command submits that run only. (Two seeds
     of one source: one demo set to build.)"""
