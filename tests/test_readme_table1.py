@@ -106,3 +106,10 @@ def test_the_natural_study_run_count_and_figures(section):
     below = [v for v in at_100 if v < 0.9]
     if "one novice-trained seed has fallen back to" in natural:
         assert len(below) == 1 and f"fallen back to {below[0] * 100:.0f} % at epoch 100" in natural, at_100
+
+
+def test_the_second_editions_run_count(section):
+    """The README says how many of the second edition's runs (docs/results/table1_v2) have finished."""
+    folder = ROOT / "docs" / "results" / "table1_v2" / "runs"
+    runs = discover_runs([folder]) if any(folder.rglob("metrics.jsonl")) else []
+    assert f"{len(runs)} of its 12 matched runs finished" in " ".join(section.split())
