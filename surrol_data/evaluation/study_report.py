@@ -429,12 +429,14 @@ def _shown_path(path: Path, report_dir: Path) -> str:
 def write_study_report(run_paths: Sequence[str | Path], out: str | Path, *, epochs: Sequence[int] | None = None,
                        demo_table_markdown: str | None = None, notes: str | None = None,
                        command: str | None = None, title: str = "Does who demonstrated matter?",
-                       expected_runs: Sequence[str] | None = None, code_checks: Sequence = ()) -> dict[str, Path]:
+                       expected_runs: Sequence[str] | None = None, code_checks: Sequence = (),
+                       retry_frames_epoch: int | None = None) -> dict[str, Path]:
     """Write report.md, report.html and learning_curves.png into ``out``; returns their paths.
 
     ``expected_runs`` (``source/seed`` names): the study's runs; a report standing on fewer is marked partial and
     names the missing ones. Runs that recorded a code identity must mean the same code (``code_checks`` adds the
-    study's before/after checks), else :class:`StudyReportError`."""
+    study's before/after checks), else :class:`StudyReportError`. ``retry_frames_epoch``: also draw the frames of
+    each source's policy after a failed first grasp at that epoch (:mod:`surrol_data.study.retry_figure`)."""
     runs = discover_runs(run_paths)
     check_runs_code(runs, code_checks)
     out = Path(out)
@@ -461,6 +463,7 @@ def write_study_report(run_paths: Sequence[str | Path], out: str | Path, *, epoc
         "\n" + table1_sources_note(runs, at) + " " + STEPS_CONVENTIONS + "\n",
         f"\n## Learning curves\n\n![learning curves]({CURVES_FILE})\n",
         *recovery_sections(runs, at),
+        *(_retry_frames_section(runs, out, retry_frames_epoch) if retry_frames_epoch else []),
     ]
     if demo_table_markdown:
         sections += ["\n## Demonstrations\n", demo_table_markdown]
@@ -473,6 +476,23 @@ def write_study_report(run_paths: Sequence[str | Path], out: str | Path, *, epoc
     html_path = out / "report.html"
     html_path.write_text(markdown_to_html(markdown, out, title))
     return {"markdown": md_path, "html": html_path, "curves": curves}
+
+
+def _retry_frames_section(runs: Sequence[Run], out: Path, epoch: int) -> list[str]:
+    from surrol_data.study.retry_figure import write_retry_figure
+
+    head = f"\n## After a failed first grasp: frames (epoch {epoch})\n"
+    try:
+        drawn = write_retry_figure(runs, out, epoch)
+    except Exception as e:   # the figure illustrates; the numbers above stand without it
+        return [head, f"The frames could not be drawn: {type(e).__name__}: {e}\n"]
+    if drawn is None:
+        return []
+    path, lines = drawn
+    return [head, "Each source's policy on the probe episodes (the grip disabled during its first attempt near the "
+            "grasp point), the episode chosen by the measure: the source's most common outcome, its first episode "
+            "(`surrol_data/study/retry_figure.py`).\n", *(f"* {line}" for line in lines),
+            f"\n![frames after a failed first grasp]({path.name})\n"]
 
 
 # ------------------------------------------------------------------------------------------------ HTML

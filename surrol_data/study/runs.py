@@ -41,6 +41,8 @@ from surrol_data.study.spec import StudySpec, load_spec, parse_runs, run_name
 RUN_RECORD = "run.json"
 CHECKS_FILE = "code_checks.jsonl"
 KEPT = ("metrics.csv", "metrics.jsonl", "eval_episodes.csv", "report_episodes.csv", "policy.pt", "actors")
+# The paper's figure of a retry is of policies at epoch 50: the report draws it when 50 is a report epoch.
+RETRY_FRAMES_EPOCH = 50
 
 
 def run_folder(out: Path, source: str, seed: int) -> Path:
@@ -321,7 +323,9 @@ def study_report(experiment: str, out: Path, spec: StudySpec, demo_md: str, natu
                               notes=_notes(spec, experiment),
                               expected_runs=[run_name(*r) for r in spec.run_order()],
                               code_checks=read_checks(out / CHECKS_FILE),
-                              command=_rebuild_command(experiment, out, natural))
+                              command=_rebuild_command(experiment, out, natural),
+                              retry_frames_epoch=(RETRY_FRAMES_EPOCH if RETRY_FRAMES_EPOCH in spec.report_epochs
+                                                  else None))
 
 
 def _rebuild_command(experiment: str, out: Path, natural: bool) -> str:

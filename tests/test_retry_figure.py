@@ -1,0 +1,77 @@
+"""The retry figure (surrol_data/study/retry_figure.py): frames chosen by the recorded outcome of the probed episodes,
+replayed with the run's kept actor and checked against the record, drawn with a real renderer."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from PIL import Image
+
+from surrol_data.evaluation.recovery_report import REPORT_FILE
+from surrol_data.evaluation.study_report import Run, discover_runs, write_study_report
+from surrol_data.study.retry_figure import FIGURE_FILE, choose_episodes, write_retry_figure
+
+
+def _run(tmp_path: Path, source: str, seed: int, outcomes: list[str], probed: list[bool] | None = None) -> Run:
+    path = tmp_path / source / f"seed{seed}"
+    path.mkdir(parents=True)
+    n = len(outcomes)
+    pd.DataFrame({"epoch": [50] * n, "kind": ["probe"] * n, "episode": range(n), "seed": [2_100_000_000 + k for k in range(n)],
+                  "probed": probed or [True] * n, "attempt_outcome": outcomes}).to_csv(path / REPORT_FILE, index=False)
+    return Run(path=path, task="NeedlePick", algo="ddpgbc", source=source, seed=seed, rows=[], config={})
+
+
+def test_each_source_shows_the_first_episode_with_its_most_common_outcome(tmp_path):
+    runs = [_run(tmp_path, "script", 1, ["stall", "stall", "first_held"]),
+            _run(tmp_path, "script", 0, ["first_held", "stall", "stall"], probed=[True, False, True]),
+            _run(tmp_path, "novice", 0, ["first_held", "first_held"]),
+            _run(tmp_path, "novice", 1, ["retried_recovered", "retried_recovered", "retried_recovered"])]
+    chosen = {c.source: c for c in choose_episodes(runs, 50)}
+    # script: stall 3 of 5 probed (seed 0's second episode was not probed); shown from the lowest seed's run
+    assert (chosen["script"].outcome, chosen["script"].share, chosen["script"].run.name, chosen["script"].seed) == \
+        ("stall", "3 of 5", "seed0", 2_100_000_002)
+    # novice: the modal outcome is only in seed 1's run, so that run shows it
+    assert (chosen["novice"].outcome, chosen["novice"].run.name, chosen["novice"].seed) == \
+        ("retried_recovered", "seed1", 2_100_000_000)
+    assert choose_episodes(runs, 25) == []
+
+
+def _probed_copy(study: Path, tmp_path: Path) -> Path:
+    """The shared quick study's runs, their probe rows marked as probed: a 2-epoch policy never attempts a grasp, so
+    the probe never took effect; the figure's pipeline is the same."""
+    runs = tmp_path / "runs"
+    shutil.copytree(study / "runs", runs)
+    for path in runs.rglob(REPORT_FILE):
+        rows = pd.read_csv(path)
+        rows.loc[rows["kind"] == "probe", "probed"] = True
+        rows.to_csv(path, index=False)
+    return runs
+
+
+def test_the_report_replays_each_chosen_episode_and_shows_its_frames(table1_quick_partial, tmp_path):
+    runs = _probed_copy(table1_quick_partial, tmp_path)
+    out = tmp_path / "report"
+    write_study_report([runs], out, epochs=[1, 2], retry_frames_epoch=2)
+    width, height = Image.open(out / FIGURE_FILE).size
+    assert width > 1000 and height > 400          # a row of frames per source (script, novice)
+    report = (out / "report.md").read_text()
+    section = report[report.index("## After a failed first grasp: frames (epoch 2)"):]
+    lines = [line for line in section.splitlines() if line.startswith("* ")]
+    assert [line[2:].split("-trained")[0] for line in lines] == ["script", "novice"]
+    assert all("`no_attempt` (2 of 2 probed episodes" in line for line in lines), lines
+    assert f"![frames after a failed first grasp]({FIGURE_FILE})" in section
+    assert "data:image/png;base64," in (out / "report.html").read_text()
+
+
+def test_a_replay_that_does_not_match_the_record_is_refused(table1_quick_partial, tmp_path):
+    runs_dir = _probed_copy(table1_quick_partial, tmp_path)
+    for path in runs_dir.rglob(REPORT_FILE):
+        rows = pd.read_csv(path)
+        rows.loc[rows["kind"] == "probe", "attempt_outcome"] = "stall"   # not what the actor does
+        rows.to_csv(path, index=False)
+    runs = [r for r in discover_runs([runs_dir]) if r.source == "script"]
+    with pytest.raises(RuntimeError, match="replayed as no_attempt, recorded as stall"):
+        write_retry_figure(runs, tmp_path, epoch=2)
