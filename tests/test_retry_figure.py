@@ -3,6 +3,7 @@ replayed with the run's kept actor and checked against the record, drawn with a 
 
 from __future__ import annotations
 
+import re
 import shutil
 from pathlib import Path
 
@@ -75,3 +76,21 @@ def test_a_replay_that_does_not_match_the_record_is_refused(table1_quick_partial
     runs = [r for r in discover_runs([runs_dir]) if r.source == "script"]
     with pytest.raises(RuntimeError, match="replayed as no_attempt, recorded as stall"):
         write_retry_figure(runs, tmp_path, epoch=2)
+
+
+def test_the_retry_tables_cover_epochs_25_50_100_beside_table_1s_epochs(table1_quick_partial, tmp_path):
+    """After training, a study run is evaluated at Table I's epochs and at 25, 50 and 100 (those it reached), and the
+    attempts and induced-failure tables show each; Table I keeps its own epochs."""
+    from surrol_data.study.report_eval import evaluated_epochs
+
+    assert evaluated_epochs((50, 100), 100) == (25, 50, 100)
+    assert evaluated_epochs((1, 2), 2) == (1, 2)
+    out = tmp_path / "report"
+    write_study_report([table1_quick_partial / "runs"], out, epochs=[2], recovery_epochs=[1, 2, 25])
+    report = (out / "report.md").read_text()
+    table1 = report[report.index("## Table I"):report.index("## Learning curves")]
+    probe = report[report.index("## Induced failure"):]
+    probe = probe[:probe.index("\n## ", 1)]
+    epochs_of = lambda text: {int(m) for m in re.findall(r"^\| \w+ \| (\d+) \|", text, re.M)}  # noqa: E731
+    assert epochs_of(probe) == {1, 2}           # 25 is beyond these 2-epoch runs
+    assert "| 1 |" not in table1 and "| 2 |" in table1

@@ -430,13 +430,16 @@ def write_study_report(run_paths: Sequence[str | Path], out: str | Path, *, epoc
                        demo_table_markdown: str | None = None, notes: str | None = None,
                        command: str | None = None, title: str = "Does who demonstrated matter?",
                        expected_runs: Sequence[str] | None = None, code_checks: Sequence = (),
-                       retry_frames_epoch: int | None = None) -> dict[str, Path]:
+                       retry_frames_epoch: int | None = None,
+                       recovery_epochs: Sequence[int] | None = None) -> dict[str, Path]:
     """Write report.md, report.html and learning_curves.png into ``out``; returns their paths.
 
     ``expected_runs`` (``source/seed`` names): the study's runs; a report standing on fewer is marked partial and
     names the missing ones. Runs that recorded a code identity must mean the same code (``code_checks`` adds the
     study's before/after checks), else :class:`StudyReportError`. ``retry_frames_epoch``: also draw the frames of
-    each source's policy after a failed first grasp at that epoch (:mod:`surrol_data.study.retry_figure`)."""
+    each source's policy after a failed first grasp at that epoch (:mod:`surrol_data.study.retry_figure`).
+    ``recovery_epochs``: the epochs of the attempts and induced-failure tables (default: Table I's), those the runs
+    reached."""
     runs = discover_runs(run_paths)
     check_runs_code(runs, code_checks)
     out = Path(out)
@@ -462,7 +465,8 @@ def write_study_report(run_paths: Sequence[str | Path], out: str | Path, *, epoc
         "## Table I\n", table1_markdown(estimates, sources),
         "\n" + table1_sources_note(runs, at) + " " + STEPS_CONVENTIONS + "\n",
         f"\n## Learning curves\n\n![learning curves]({CURVES_FILE})\n",
-        *recovery_sections(runs, at),
+        *recovery_sections(runs, at if recovery_epochs is None else
+                           [e for e in recovery_epochs if any(r.epochs >= e for r in runs)]),
         *(_retry_frames_section(runs, out, retry_frames_epoch) if retry_frames_epoch else []),
     ]
     if demo_table_markdown:

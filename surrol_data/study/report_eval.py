@@ -27,11 +27,20 @@ from surrol_data.evaluation.recovery_report import REPORT_FILE
 REPORT_SEED_BASE = 2_000_000_000
 PROBE_SEED_BASE = 2_100_000_000
 KEPT_ACTOR_EPOCHS = (25, 50, 75, 100)
+# The epochs of the attempts and induced-failure tables (the paper's retry question at the start, middle and end of
+# training), evaluated besides the report epochs of Table I.
+RECOVERY_EPOCHS = (25, 50, 100)
 
 
 def actor_epochs(report_epochs: Sequence[int], epochs: int) -> tuple[int, ...]:
     """The epochs whose actor a run of ``epochs`` epochs keeps: 25, 50, 75, 100 and the report epochs."""
     return tuple(sorted(e for e in {*KEPT_ACTOR_EPOCHS, *map(int, report_epochs)} if 1 <= e <= epochs))
+
+
+def evaluated_epochs(report_epochs: Sequence[int], epochs: int) -> tuple[int, ...]:
+    """The epochs a run of ``epochs`` epochs is evaluated at after training: the report epochs and
+    :data:`RECOVERY_EPOCHS` (those it has)."""
+    return tuple(sorted(e for e in {*map(int, report_epochs), *RECOVERY_EPOCHS} if 1 <= e <= epochs))
 
 
 def has_report_episodes(run_dir: str | Path, epochs: Sequence[int], episodes: int) -> bool:

@@ -277,7 +277,8 @@ def _train_batch(out: Path, spec: StudySpec, selected, cfgs, train_cfgs, identit
                  shared: bool = True) -> list[Path]:
     """Train ``selected`` as one batched ensemble and move each into its run folder (see :func:`_start_batch`)."""
     from surrol_data.algos.train_batched import train_batched
-    from surrol_data.study.report_eval import actor_epochs, evaluate_report_epochs, has_report_episodes
+    from surrol_data.study.report_eval import (actor_epochs, evaluate_report_epochs, evaluated_epochs,
+                                               has_report_episodes)
 
     _start_batch(out, [run_name(*r) for r in selected], shared=shared)
     started = time.time()
@@ -285,13 +286,14 @@ def _train_batch(out: Path, spec: StudySpec, selected, cfgs, train_cfgs, identit
     train_batched(train_cfgs, overlap=bool(cfgs[0].batched_overlap), n_workers=int(schedule.n_envs),
                   progress=progress, episode_epochs=tuple(spec.report_epochs),
                   actor_epochs=actor_epochs(spec.report_epochs, schedule.epochs))
+    evaluated = evaluated_epochs(spec.report_epochs, schedule.epochs)
     for (source, seed), cfg in zip(selected, train_cfgs):
-        if has_report_episodes(cfg.run_dir, spec.report_epochs, spec.report_episodes):
+        if has_report_episodes(cfg.run_dir, evaluated, spec.report_episodes):
             continue   # (a study killed after this run's report evaluation, resumed)
         if progress:
-            print(f"evaluating {run_name(source, seed)} at epochs {list(spec.report_epochs)}: "
+            print(f"evaluating {run_name(source, seed)} at epochs {list(evaluated)}: "
                   f"{spec.report_episodes} fresh and {spec.report_episodes} probed episodes each")
-        evaluate_report_epochs(cfg.run_dir, cfg.env_id, spec.report_epochs, spec.report_episodes,
+        evaluate_report_epochs(cfg.run_dir, cfg.env_id, evaluated, spec.report_episodes,
                                schedule.max_episode_steps)
     return [_finish_run(out, spec, source, seed, Path(cfg.run_dir), composed, identity, hashes, started,
                         len(selected))
@@ -319,7 +321,10 @@ def study_report(experiment: str, out: Path, spec: StudySpec, demo_md: str, natu
 
     if not finished_runs(out, spec):
         return {}
+    from surrol_data.study.report_eval import RECOVERY_EPOCHS
+
     return write_study_report([out / "runs"], out, epochs=list(spec.report_epochs), demo_table_markdown=demo_md,
+                              recovery_epochs=sorted({*spec.report_epochs, *RECOVERY_EPOCHS}),
                               notes=_notes(spec, experiment),
                               expected_runs=[run_name(*r) for r in spec.run_order()],
                               code_checks=read_checks(out / CHECKS_FILE),
