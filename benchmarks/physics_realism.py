@@ -24,8 +24,8 @@ counts tip-pinch lifts.
 
 Per episode it also counts objects that end below their support (centre of mass under the floor they rest on)
 or out of the workspace (off the table), objects never held that end outside every tool tip's clip box ("pushed
-out", out of reach; with how far beyond, mm), objects left inside a static body (> 1 mm at the end), drops (a grasp lost while the
-jaw was still commanded closed), and grasps made when the object was not between the blades. Steps/s exclude
+out", out of reach; with how far beyond, mm), objects left inside a static body (> 1 mm at the end), drops (a grasp
+lost while the jaw was still commanded closed), and grasps made when the object was not between the blades. Steps/s exclude
 the probe's own time. Everything prints as one table.
 """
 
@@ -454,7 +454,7 @@ def run_drops(task: str, episodes: int) -> Result:
         c.resetBasePositionAndOrientation(u.object_id, (pos * SCALING).tolist(), quat)
         c.resetBaseVelocity(u.object_id, [0, 0, 0], [0, 0, 0])
         c.changeDynamics(u.object_id, -1, activationState=c.ACTIVATION_STATE_WAKE_UP)
-        probe.held_ever.add(u.object_id)   # placed by the test where it falls (PegTransfer: beyond the tip's box), not pushed
+        probe.held_ever.add(u.object_id)   # placed where it falls (PegTransfer's: beyond the tip's box), not pushed
         for _ in range(12):
             timed_step(env, np.array([0, 0, 0, 0, 1.0]), res, probe, [False])
     return res
