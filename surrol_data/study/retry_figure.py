@@ -4,8 +4,8 @@ The paper showed a human-trained policy grasping again after a failed first atte
 stalled. Every run's report evaluation (:mod:`surrol_data.study.report_eval`) plays its kept actors on probe episodes
 whose first attempt near the grasp point is made to fail (the grip disabled), on the same seeds for every run, and
 records each episode's outcome (:class:`~surrol_data.datasets.attempts.Outcome`). The frames are chosen by that
-measure, not by hand: per source, the run of the lowest seed; among its probed episodes at the epoch, the outcome the
-source's runs show most often; the first episode (lowest seed) of that run with it. The episode is played again (the
+measure, not by hand: per source, the outcome its runs' probed episodes at the epoch show most often, and the first
+episode (lowest seed) with it of the lowest-seed run that has one. The episode is played again (the
 actor is deterministic, the seed the same; its outcome is checked against the recorded one) keeping PyBullet's state
 after every step, and the frames are drawn afterwards from the kept states (drawing reads link frames with a
 forward-kinematics pass, which would perturb an episode under way): the failed attempt's close, the jaw reopening,
