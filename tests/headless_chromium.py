@@ -104,8 +104,11 @@ class Page:
         self.browser, self.target, self.cdp = browser, target, endpoint
 
     def goto(self, url: str) -> None:
+        # The old document is 'complete' too until the navigation commits (a loaded machine commits late, and a
+        # fetch made meanwhile went to the old page and failed): wait for a document without the old one's mark.
+        self.js("window.__leaving = true")
         self.cdp.call("Page.navigate", url=url)
-        self.wait_for("document.readyState === 'complete'")
+        self.wait_for("!window.__leaving && document.readyState === 'complete'")
 
     def js(self, expression: str, timeout: float = 60):
         """The value of ``expression`` in the page (promises awaited)."""

@@ -456,3 +456,17 @@ def test_a_haptic_session_maps_the_hand_in_the_camera_frame_and_records_it(task,
             _assert_on_screen(task, arm, direction, motion)
     settings = json.loads(DatasetReader(tmp_path / "ds").episodes["device_settings"].iloc[0])
     assert settings["mapping_frames"] == ["camera"] * n_arms and settings["camera_version"] == 2
+
+
+def test_an_env_made_without_render_mode_is_refused_by_the_view_not_left_to_hang():
+    """Such a world has no visual shapes and its PyBullet server no renderer: Panda3D's mirror of the scene asked for
+    its visual shapes and never got an answer. The view says what to do instead."""
+    from surrol_data.render.env_view import EnvEndoscope
+
+    env = gym.make(env_id("NeedlePick"))
+    try:
+        env.reset(seed=0)
+        with pytest.raises(ValueError, match="render_mode='rgb_array'"):
+            EnvEndoscope(env)
+    finally:
+        env.close()

@@ -14,6 +14,11 @@ from surrol_data.envs.units import SCALING
 class EnvEndoscope:
     def __init__(self, env):
         u = env.unwrapped
+        if getattr(u, "visual", True) is False:
+            # Such a world was built without visual shapes and its PyBullet server without a renderer, where a
+            # query of its visual shapes (Panda3D's mirror of the scene makes one) never returns.
+            raise ValueError(f"{type(u).__name__} was made without render_mode or camera, so it has nothing to draw; "
+                             f"make it with gym.make(..., render_mode='rgb_array')")
         self.env = u
         self.client = u.client
         if getattr(u, "endoscope", None) is not None:
