@@ -148,8 +148,8 @@ FLAT_BLOCK_TRAVEL_PER_STEP_M = 0.00025
 # Needles: a needle dropped from the air lands on its arc and rocks there; at the coarse step a rocking needle that had
 # come almost to rest (its far end moving ~0.3 mm a step) was kicked by its own contacts 1.05 mm into the table
 # (NeedleRegrasp, random actions, seed 1; refined, 0.02 mm). At 0.25 mm per step the same 10 seeds read ≤ 0.74 mm.
-# The hand-over scenes' (NeedleRegrasp, NeedleRings): NeedlePick's oracle, at this limit, failed 5 of 5 seeds (the
-# episodes whose reset ran at it; not investigated), so NeedlePick keeps the objects' limit.
+# The hand-over scenes' (NeedleRegrasp, NeedleRings): NeedlePick's oracle, at this limit, failed 5 of 5 seeds (its
+# reset left the needle 1.1 mm above its rest; not investigated), so NeedlePick keeps the objects' limit.
 NEEDLE_TRAVEL_PER_STEP_M = 0.00025
 MAX_REFINEMENT = 8
 # A tool's period is refined only for a body it moves towards fast enough to close the gap within the period
