@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import re
 import shutil
+from functools import partial
 from pathlib import Path
 
 import pandas as pd
@@ -13,7 +14,8 @@ from PIL import Image
 
 from surrol_data.evaluation.recovery_report import REPORT_FILE
 from surrol_data.evaluation.study_report import Run, discover_runs, write_study_report
-from surrol_data.study.retry_figure import FIGURE_FILE, choose_episodes, write_retry_figure
+from surrol_data.study.retry_figure import (FIGURE_FILE, choose_episodes, retry_frames_section,
+                                           write_retry_figure)
 
 
 def _run(tmp_path: Path, source: str, seed: int, outcomes: list[str], probed: list[bool] | None = None) -> Run:
@@ -55,7 +57,7 @@ def _probed_copy(study: Path, tmp_path: Path) -> Path:
 def test_the_report_replays_each_chosen_episode_and_shows_its_frames(table1_quick_partial, tmp_path):
     runs = _probed_copy(table1_quick_partial, tmp_path)
     out = tmp_path / "report"
-    write_study_report([runs], out, epochs=[1, 2], retry_frames_epoch=2)
+    write_study_report([runs], out, epochs=[1, 2], figures=partial(retry_frames_section, epoch=2))
     width, height = Image.open(out / FIGURE_FILE).size
     assert width > 1000 and height > 400          # a row of frames per source (script, novice)
     report = (out / "report.md").read_text()

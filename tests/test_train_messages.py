@@ -60,15 +60,16 @@ def _interrupted_run(folder, overrides):
 
 
 def test_ctrl_c_ends_with_the_command_that_resumes(tmp_path):
-    overrides = _overrides("experiment.epochs=12")
-    # The 12 epochs take a few seconds: on a loaded machine this test may be descheduled long enough that the run has
-    # finished its last epoch and is exiting when the signal is sent, which then finds no process left to stop. Such a
-    # try says nothing about Ctrl-C: another is made (a run that ignores Ctrl-C fails every try).
+    overrides = _overrides("experiment.epochs=20")
+    # The 20 epochs take ~10 s: on a loaded machine this test may be descheduled long enough that the run has finished
+    # its last epoch and is exiting when the signal is sent, which then finds no process left to stop (with 12 epochs,
+    # 3 tries in a row so, beside a training study). Such a try says nothing about Ctrl-C: another is made (a run that
+    # ignores Ctrl-C fails every try).
     for attempt in range(3):
         folder = tmp_path / f"try{attempt}"
         folder.mkdir()
         run, err, metrics = _interrupted_run(folder, overrides)
-        finished = run.returncode == 0 and len(metrics.read_text().splitlines()) == 13
+        finished = run.returncode == 0 and len(metrics.read_text().splitlines()) == 21
         if not finished:
             break
     assert run.returncode == 130, err[-3000:]
@@ -81,7 +82,7 @@ def test_ctrl_c_ends_with_the_command_that_resumes(tmp_path):
                              timeout=300)
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     rows = [json.loads(line) for line in metrics.read_text().splitlines()]
-    assert [r["epoch"] for r in rows] == list(range(13))
+    assert [r["epoch"] for r in rows] == list(range(21))
 
 
 def test_the_resume_command_keeps_the_overrides_and_replaces_resume_and_overwrite(monkeypatch):

@@ -30,7 +30,7 @@ from collections import defaultdict
 from dataclasses import dataclass
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -430,16 +430,15 @@ def write_study_report(run_paths: Sequence[str | Path], out: str | Path, *, epoc
                        demo_table_markdown: str | None = None, notes: str | None = None,
                        command: str | None = None, title: str = "Does who demonstrated matter?",
                        expected_runs: Sequence[str] | None = None, code_checks: Sequence = (),
-                       retry_frames_epoch: int | None = None,
-                       recovery_epochs: Sequence[int] | None = None) -> dict[str, Path]:
+                       recovery_epochs: Sequence[int] | None = None,
+                       figures: Callable[[Sequence[Run], Path], list[str]] | None = None) -> dict[str, Path]:
     """Write report.md, report.html and learning_curves.png into ``out``; returns their paths.
 
     ``expected_runs`` (``source/seed`` names): the study's runs; a report standing on fewer is marked partial and
     names the missing ones. Runs that recorded a code identity must mean the same code (``code_checks`` adds the
-    study's before/after checks), else :class:`StudyReportError`. ``retry_frames_epoch``: also draw the frames of
-    each source's policy after a failed first grasp at that epoch (:mod:`surrol_data.study.retry_figure`).
-    ``recovery_epochs``: the epochs of the attempts and induced-failure tables (default: Table I's), those the runs
-    reached."""
+    study's before/after checks), else :class:`StudyReportError`. ``recovery_epochs``: the epochs of the attempts and
+    induced-failure tables (default: Table I's), those the runs reached. ``figures``: called with the runs and
+    ``out``, draws more figures there and returns their sections (the study's retry frames)."""
     runs = discover_runs(run_paths)
     check_runs_code(runs, code_checks)
     out = Path(out)
@@ -467,7 +466,7 @@ def write_study_report(run_paths: Sequence[str | Path], out: str | Path, *, epoc
         f"\n## Learning curves\n\n![learning curves]({CURVES_FILE})\n",
         *recovery_sections(runs, at if recovery_epochs is None else
                            [e for e in recovery_epochs if any(r.epochs >= e for r in runs)]),
-        *(_retry_frames_section(runs, out, retry_frames_epoch) if retry_frames_epoch else []),
+        *(figures(runs, out) if figures else []),
     ]
     if demo_table_markdown:
         sections += ["\n## Demonstrations\n", demo_table_markdown]
@@ -480,23 +479,6 @@ def write_study_report(run_paths: Sequence[str | Path], out: str | Path, *, epoc
     html_path = out / "report.html"
     html_path.write_text(markdown_to_html(markdown, out, title))
     return {"markdown": md_path, "html": html_path, "curves": curves}
-
-
-def _retry_frames_section(runs: Sequence[Run], out: Path, epoch: int) -> list[str]:
-    from surrol_data.study.retry_figure import write_retry_figure
-
-    head = f"\n## After a failed first grasp: frames (epoch {epoch})\n"
-    try:
-        drawn = write_retry_figure(runs, out, epoch)
-    except Exception as e:   # the figure illustrates; the numbers above stand without it
-        return [head, f"The frames could not be drawn: {type(e).__name__}: {e}\n"]
-    if drawn is None:
-        return []
-    path, lines = drawn
-    return [head, "Each source's policy on the probe episodes (the grip disabled during its first attempt near the "
-            "grasp point), the episode chosen by the measure: the source's most common outcome, its first episode "
-            "(`surrol_data/study/retry_figure.py`).\n", *(f"* {line}" for line in lines),
-            f"\n![frames after a failed first grasp]({path.name})\n"]
 
 
 # ------------------------------------------------------------------------------------------------ HTML

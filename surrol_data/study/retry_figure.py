@@ -200,3 +200,20 @@ def write_retry_figure(runs: Sequence, out: str | Path, epoch: int,
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path, lines
+
+
+def retry_frames_section(runs: Sequence, out: Path, epoch: int) -> list[str]:
+    """The report's section of the figure (drawn into ``out``), or none when no run has probed episodes at ``epoch``;
+    a figure that cannot be drawn says why instead (the numbers above it stand without it)."""
+    head = f"\n## After a failed first grasp: frames (epoch {epoch})\n"
+    try:
+        drawn = write_retry_figure(runs, out, epoch)
+    except Exception as e:
+        return [head, f"The frames could not be drawn: {type(e).__name__}: {e}\n"]
+    if drawn is None:
+        return []
+    path, lines = drawn
+    return [head, "Each source's policy on the probe episodes (the grip disabled during its first attempt near the "
+            "grasp point), the episode chosen by the measure: the source's most common outcome, its first episode "
+            "(`surrol_data/study/retry_figure.py`).\n", *(f"* {line}" for line in lines),
+            f"\n![frames after a failed first grasp]({path.name})\n"]

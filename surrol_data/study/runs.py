@@ -30,6 +30,7 @@ import shutil
 import time
 from collections.abc import Sequence
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 
 from surrol_data.evaluation.code_identity import (CodeIdentity, append_check, check_same_code, read_checks)
@@ -322,6 +323,7 @@ def study_report(experiment: str, out: Path, spec: StudySpec, demo_md: str, natu
     if not finished_runs(out, spec):
         return {}
     from surrol_data.study.report_eval import RECOVERY_EPOCHS
+    from surrol_data.study.retry_figure import retry_frames_section
 
     return write_study_report([out / "runs"], out, epochs=list(spec.report_epochs), demo_table_markdown=demo_md,
                               recovery_epochs=sorted({*spec.report_epochs, *RECOVERY_EPOCHS}),
@@ -329,8 +331,8 @@ def study_report(experiment: str, out: Path, spec: StudySpec, demo_md: str, natu
                               expected_runs=[run_name(*r) for r in spec.run_order()],
                               code_checks=read_checks(out / CHECKS_FILE),
                               command=_rebuild_command(experiment, out, natural),
-                              retry_frames_epoch=(RETRY_FRAMES_EPOCH if RETRY_FRAMES_EPOCH in spec.report_epochs
-                                                  else None))
+                              figures=(partial(retry_frames_section, epoch=RETRY_FRAMES_EPOCH)
+                                       if RETRY_FRAMES_EPOCH in spec.report_epochs else None))
 
 
 def _rebuild_command(experiment: str, out: Path, natural: bool) -> str:
