@@ -45,8 +45,11 @@ def test_a_finished_run_says_where_its_outputs_are(tmp_path):
 
 def _interrupted_run(folder, overrides):
     """A run sent Ctrl-C once its epochs 0 and 1 are done: (the process, its stderr, its metrics file)."""
+    # A terminal's foreground job has Ctrl-C's default action; the tests may run in a background job, whose
+    # processes inherit SIGINT ignored (a non-interactive shell's `&`), and an ignored SIGINT is left alone by train.
     run = subprocess.Popen([*CLI, "train", *overrides], cwd=folder, env=ENV, stdout=subprocess.PIPE,
-                           stderr=subprocess.PIPE, text=True, start_new_session=True)
+                           stderr=subprocess.PIPE, text=True, start_new_session=True,
+                           preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     metrics = folder / "run" / "metrics.jsonl"
     deadline = time.time() + 180
     while time.time() < deadline and run.poll() is None:
@@ -60,16 +63,15 @@ def _interrupted_run(folder, overrides):
 
 
 def test_ctrl_c_ends_with_the_command_that_resumes(tmp_path):
-    overrides = _overrides("experiment.epochs=20")
-    # The 20 epochs take ~10 s: on a loaded machine this test may be descheduled long enough that the run has finished
-    # its last epoch and is exiting when the signal is sent, which then finds no process left to stop (with 12 epochs,
-    # 3 tries in a row so, beside a training study). Such a try says nothing about Ctrl-C: another is made (a run that
-    # ignores Ctrl-C fails every try).
+    overrides = _overrides("experiment.epochs=12")
+    # The 12 epochs take a few seconds: on a loaded machine this test may be descheduled long enough that the run has
+    # finished its last epoch and is exiting when the signal is sent, which then finds no process left to stop. Such a
+    # try says nothing about Ctrl-C: another is made (a run that ignores Ctrl-C fails every try).
     for attempt in range(3):
         folder = tmp_path / f"try{attempt}"
         folder.mkdir()
         run, err, metrics = _interrupted_run(folder, overrides)
-        finished = run.returncode == 0 and len(metrics.read_text().splitlines()) == 21
+        finished = run.returncode == 0 and len(metrics.read_text().splitlines()) == 13
         if not finished:
             break
     assert run.returncode == 130, err[-3000:]
@@ -82,7 +84,7 @@ def test_ctrl_c_ends_with_the_command_that_resumes(tmp_path):
                              timeout=300)
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     rows = [json.loads(line) for line in metrics.read_text().splitlines()]
-    assert [r["epoch"] for r in rows] == list(range(21))
+    assert [r["epoch"] for r in rows] == list(range(13))
 
 
 def test_the_resume_command_keeps_the_overrides_and_replaces_resume_and_overwrite(monkeypatch):
