@@ -22,15 +22,10 @@ from rich.progress import track
 import surrol_data.envs
 from surrol_data.envs import env_id
 from surrol_data.envs.camera import make_camera
+from surrol_data.render.display import best_renderer
 from surrol_data.render.env_view import EnvEndoscope
 
 OUT = Path(__file__).resolve().parent / "tasks"
-
-
-def default_renderer() -> str:
-    from surrol_data.render.display import unavailable_reason
-
-    return "panda3d" if unavailable_reason() is None else "tiny"
 
 
 def render_start(task: str, seed: int = 0, size: tuple[int, int] = (640, 480), renderer: str = "tiny") -> np.ndarray:
@@ -58,7 +53,7 @@ def main(argv: list[str] | None = None) -> list[Path]:
     if unknown:
         parser.error(f"unknown task(s) {', '.join(unknown)}; registered: {', '.join(surrol_data.envs.TASKS)}")
     args.out.mkdir(parents=True, exist_ok=True)
-    renderer = args.renderer or default_renderer()
+    renderer = args.renderer or best_renderer()
     paths = []
     for task in track(args.tasks, description="rendering task starts"):
         path = args.out / f"{task}.png"

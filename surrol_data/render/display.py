@@ -102,3 +102,8 @@ def unavailable_reason() -> str | None:
     except (RendererUnavailable, ImportError) as e:
         return str(e)
     return None
+
+
+def best_renderer() -> str:
+    """``panda3d`` where it can render offscreen here, else ``tiny`` (TinyRenderer draws everywhere)."""
+    return "panda3d" if unavailable_reason() is None else "tiny"

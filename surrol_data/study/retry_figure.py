@@ -57,11 +57,9 @@ def choose_episodes(runs, epoch: int) -> list[ChosenEpisode]:
             continue
         counts = Counter(o for _, rows in frames for o in rows["attempt_outcome"])
         outcome, n = counts.most_common(1)[0]
-        run, rows = frames[0]
+        # (frames are in seed order: the first run that shows the outcome is the lowest-seed one with it)
+        run, rows = next((r, x) for r, x in frames if (x["attempt_outcome"] == outcome).any())
         hit = rows[rows["attempt_outcome"] == outcome]
-        if not len(hit):   # the modal outcome is not the lowest seed's run's: take the first run that shows it
-            run, rows = next((r, x) for r, x in frames if (x["attempt_outcome"] == outcome).any())
-            hit = rows[rows["attempt_outcome"] == outcome]
         chosen.append(ChosenEpisode(source, run.path, int(hit["seed"].iloc[0]), str(outcome),
                                     f"{n} of {sum(counts.values())}"))
     return chosen
@@ -97,6 +95,7 @@ def replay_frames(env_id: str, actor: Path, seed: int, max_steps: int, size=(320
     from surrol_data.envs.camera import make_camera
     from surrol_data.evaluation.grip_probe import InducedFailure
     from surrol_data.evaluation.rollout import policy_threads
+    from surrol_data.render.display import best_renderer
     from surrol_data.render.env_view import EnvEndoscope
 
     env = _KeepStates(InducedFailure(gym.make(env_id, max_episode_steps=max_steps, render_mode="rgb_array")))
@@ -107,7 +106,7 @@ def replay_frames(env_id: str, actor: Path, seed: int, max_steps: int, size=(320
         attempts = trajectory_attempts(traj)
         client = env.unwrapped.client
         view = EnvEndoscope(env)
-        camera = make_camera(client, tuple(size), view.scene_scale, renderer or _default_renderer())
+        camera = make_camera(client, tuple(size), view.scene_scale, renderer or best_renderer())
         frames = []
         for step in _frame_steps(attempts, len(traj.action)):
             client.restoreState(env.states[step])
@@ -144,12 +143,6 @@ class _KeepStates(gym.Wrapper):
     def close(self):
         self._drop()
         self.env.close()
-
-
-def _default_renderer() -> str:
-    from surrol_data.render.display import unavailable_reason
-
-    return "panda3d" if unavailable_reason() is None else "tiny"
 
 
 def write_retry_figure(runs: Sequence, out: str | Path, epoch: int,
