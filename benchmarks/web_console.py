@@ -11,7 +11,8 @@ keys (held 0.4 s, released 0.4 s) for ``--seconds``. Measured in the pages:
   render, the JPEG; a loaded machine stretches wall time, not this. 1000 / it is the frames/s one free core gives.
 
 ``paced``: the session steps at the task's control period (0.2 s for the PSM tasks: 5 steps/s), as a person
-operates; a view is streamed after every step. ``unpaced``: the steps run back to back (the console's capacity).
+operates; three views are streamed a step (the states at a third and two thirds of it and at its end, a third of a
+step apart: 15 a second). ``unpaced``: the steps and their views run back to back (the console's capacity).
 
     uv run python benchmarks/web_console.py --seconds 20
 """

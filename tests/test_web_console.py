@@ -102,6 +102,96 @@ def test_serve_refuses_bad_arguments_in_one_line():
         assert result.exit_code != 0 and words in result.output and "Traceback" not in result.output, result.output
 
 
+def test_a_session_streams_three_views_a_step_each_a_state_the_episode_passes_through_and_leaves_it_as_it_is():
+    """One browser's process, driven over its pipe as the server drives it: while the operator holds a key, every arm
+    step after the first streams three views (15 a second), each the image of a physics substep's state, in order,
+    the last the step's end; and the saved episode is what its actions give without any view drawn."""
+    import io
+    import multiprocessing
+
+    import gymnasium as gym
+    from PIL import Image
+
+    from surrol_data.envs import env_id
+    from surrol_data.envs.camera import make_camera
+    from surrol_data.render.env_view import EnvEndoscope
+    from surrol_data.web.worker import JPEG_QUALITY, MID_STEP_VIEWS, worker_main
+
+    size, seed = (96, 72), 5
+    ctx = multiprocessing.get_context("spawn")
+    ours, theirs = ctx.Pipe()
+    worker = ctx.Process(target=worker_main, args=(theirs, "NeedlePick", "op.1", "novice", seed, size, "panda3d"),
+                         daemon=True)
+    worker.start()
+    try:
+        def receive(kind: str) -> tuple:
+            while True:
+                assert ours.poll(120), f"no {kind!r} from the worker"
+                message = ours.recv()
+                if message[0] == kind:
+                    return message
+                assert message[0] in ("ready", "task", "frame", "status"), message
+
+        receive("task")
+        ours.send(("play", "keyboard"))
+        receive("status")
+        ours.send(("input", {"seq": 1, "keys": ["a", "s"]}))   # left and toward the operator: the tool moves
+        views = []
+        while len(views) < 1 + 3 * 7:
+            views.append(receive("frame")[2])
+        ours.send(("press", "enter"))
+        while True:   # the views streamed before the saved episode are all of it
+            assert ours.poll(120)
+            message = ours.recv()
+            if message[0] == "frame":
+                views.append(message[2])
+            elif message[0] == "episode":
+                record = message[1]
+                break
+        ours.send(("recorded", 0))
+        ours.send(("quit",))
+    finally:
+        worker.join(30)
+        if worker.is_alive():
+            worker.kill()
+    traj = record["traj"]
+    assert record["provenance"]["seed"] == seed and len(views) == 1 + 3 * (len(traj.action) - 1)
+
+    # The episode again, from its actions, with no view drawn: the same, to the bit.
+    env = gym.make(env_id("NeedlePick"), render_mode="rgb_array")
+    env.reset(seed=seed)
+    for action, observation in zip(traj.action, traj.observation[1:], strict=True):
+        obs = env.step(action)[0]
+        assert np.array_equal(obs["observation"], observation)
+
+    # And once more, drawing every physics substep's state as the worker draws it (without a forward-kinematics pass):
+    # each streamed view is one of them, in order, three a step (at a third, two thirds and the end of the step).
+    env.reset(seed=seed)
+    endoscope = EnvEndoscope(env)
+    camera = make_camera(env.unwrapped.client, size, scene_scale=endoscope.scene_scale, renderer="panda3d")
+
+    def jpeg() -> bytes:
+        buffer = io.BytesIO()
+        Image.fromarray(camera.render(endoscope.pose(), forward_kinematics=False).rgb).save(buffer, "JPEG",
+                                                                                           quality=JPEG_QUALITY)
+        return buffer.getvalue()
+
+    substeps: list[bytes] = []
+    env.unwrapped.substep_hook = lambda u: substeps.append(jpeg())
+    at, moving = 0, 0
+    for k, action in enumerate(traj.action):
+        substeps.clear()
+        env.step(action)
+        n = len(substeps)
+        shown = [n] if k == 0 else [n // 3, 2 * n // 3, n]   # the substeps (1-based) the step's views show
+        assert views[at:at + len(shown)] == [substeps[i - 1] for i in shown], (k, shown)
+        moving += len(set(views[at:at + len(shown)])) == len(shown) > 1   # the tool moved between them
+        at += len(shown)
+    assert at == len(views) and moving >= len(traj.action) // 2
+    camera.close()
+    env.close()
+
+
 # ---------------------------------------------------------------------- in Chromium
 needs_chromium = pytest.mark.skipif(chromium() is None, reason=f"needs headless Chromium: apt-get install {PACKAGE}")
 

@@ -108,8 +108,11 @@ class EndoscopeCamera:
         self._projection = client.computeProjectionMatrixFOV(
             FOV_DEG, width / height, NEAR_M * scene_scale, FAR_M * scene_scale)
 
-    def render(self, world_T_eef, depth: bool = False, segmentation: bool = False) -> CameraImage:
-        """RGB (always), depth and segmentation (when asked) from the endoscope at ``world_T_eef`` (real)."""
+    def render(self, world_T_eef, depth: bool = False, segmentation: bool = False,
+               forward_kinematics: bool = True) -> CameraImage:
+        """RGB (always), depth and segmentation (when asked) from the endoscope at ``world_T_eef`` (real).
+        ``forward_kinematics`` is the Panda3D camera's (TinyRenderer draws each link where the last physics step
+        stored it, and changes no episode either way)."""
         axes = camera_axes(world_T_eef)
         s = self.scene_scale
         eye = [v * s for v in axes.eye]

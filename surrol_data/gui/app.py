@@ -435,9 +435,11 @@ class TrainingApp:
         self._sync_scene()
 
     def _sync_scene(self) -> None:
-        """Copy the PyBullet poses into the scene: only while no session steps (or while it waits for this)."""
+        """Copy the PyBullet poses into the scene: only while no session steps (or while it waits for this). Without
+        PyBullet's forward-kinematics pass: a view must leave the episode it shows as it is (the one a replay of its
+        actions without a window gives)."""
         if self._stage is not None:
-            self._stage.update(self._endoscope.pose())
+            self._stage.update(self._endoscope.pose(), forward_kinematics=False)
             self._stage.place_camera(self._view_cam)
             self._redraw_view()
 

@@ -73,14 +73,19 @@ def base_inertial_frame(client, body: int):
     return ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0)) if garbage else (pos, orn)
 
 
-def link_world_poses(client, body: int, links, inertial_from_link) -> dict[int, tuple]:
-    """(position, quaternion xyzw) in scene units of each link of ``links`` (-1: the base's link frame)."""
+def link_world_poses(client, body: int, links, inertial_from_link, forward_kinematics: bool = True) -> dict[int, tuple]:
+    """(position, quaternion xyzw) in scene units of each link of ``links`` (-1: the base's link frame).
+
+    ``forward_kinematics=False``: each link where the last physics step left its stored frame (where that step
+    began, one physics step old) instead of PyBullet's forward-kinematics pass, which moves the solver's next results
+    in their last bits (growing to millimetres over an episode): for views drawn while an episode runs that must
+    leave it as it is."""
     poses = {}
     if -1 in links:
         pos, orn = client.getBasePositionAndOrientation(body)
         poses[-1] = client.multiplyTransforms(pos, orn, *inertial_from_link)
     moving = [link for link in links if link >= 0]
     if moving:
-        for link, state in zip(moving, client.getLinkStates(body, moving, computeForwardKinematics=True)):
+        for link, state in zip(moving, client.getLinkStates(body, moving, computeForwardKinematics=forward_kinematics)):
             poses[link] = (state[4], state[5])
     return poses

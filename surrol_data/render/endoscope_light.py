@@ -81,6 +81,9 @@ class EndoscopeLight:
     def __init__(self, scene: NodePath, shadows: bool = True, shadow_map_size: int = SHADOW_MAP_SIZE):
         self.spot = _spot("endoscope_light", CONE_DEG, SPOT_EXPONENT)
         self.shadow = _spot("shadow_light", SHADOW_CONE_DEG, 1.0)
+        # The shader's lights are ordered by priority (highest first): the scope light is its light 0, the shadow
+        # light its light 1, the only one whose shadow map it reads (phong_shader.SHADOW_LIGHT).
+        self.spot.set_priority(1)
         self.shadow.set_tag_state_key(SHADOW_TAG)
         # The shadow map is depth only: a trivial shader (overriding the scene's Phong program) writes it.
         depth_only = ShaderAttrib.make(depth_only_shader(), 1000)

@@ -104,9 +104,12 @@ class PandaEndoscopeCamera:
         buffer.make_display_region().set_camera(cam)
         return cam
 
-    def render(self, world_T_eef, depth: bool = False, segmentation: bool = False) -> CameraImage:
-        """RGB (always), depth and segmentation (when asked) from the endoscope at ``world_T_eef`` (real)."""
-        self.stage.update(world_T_eef)
+    def render(self, world_T_eef, depth: bool = False, segmentation: bool = False,
+               forward_kinematics: bool = True) -> CameraImage:
+        """RGB (always), depth and segmentation (when asked) from the endoscope at ``world_T_eef`` (real);
+        ``forward_kinematics=False`` leaves a running episode as it is (see
+        :func:`~surrol_data.render.body_shapes.link_world_poses`)."""
+        self.stage.update(world_T_eef, forward_kinematics)
         self.stage.place_camera(self._colour_cam)
         need_ids = depth or segmentation
         if need_ids:

@@ -10,7 +10,7 @@ Per fragment: albedo = (colour × material texture) linearised with the display'
 scope light and the shadow light of :mod:`~surrol_data.render.endoscope_light`), irradiance = colour ×
 attenuation(distance) × cone(angle) × shadow × max(n·l, 0) and a Phong highlight = specular × (r·v)^shininess;
 plus the ambient term; then a soft shoulder above 0.8 and the display's gamma, as a camera encodes light. The cone edge is softened over the last few degrees (a real fibre bundle's beam has
-no hard edge); shadow lookups use the hardware's 2×2 depth comparison (``sampler2DShadow``).
+no hard edge); shadow lookups (the shadow light's only) use the hardware's 2×2 depth comparison (``sampler2DShadow``).
 """
 
 from __future__ import annotations
@@ -63,6 +63,7 @@ in vec3 v_normal;
 in vec2 v_uv;
 out vec4 o_color;
 
+const int SHADOW_LIGHT = 1;          // the light that casts shadows (endoscope_light orders them by priority)
 const float CONE_SOFT_EDGE = 0.06;   // in cos(angle): about the last 5 degrees of the cone
 const float GAMMA = 2.2;             // the display's: colours are sRGB-like, light adds up linearly
 const float KNEE = 0.8;              // above it, a soft shoulder instead of clipping to white
@@ -78,7 +79,9 @@ vec3 spot_light(int i, vec3 n, vec3 v, vec3 albedo) {
     vec3 att = p3d_LightSource[i].attenuation;
     float falloff = 1.0 / max(att.x + att.y * d + att.z * d * d, 1e-6);
     float lit = 1.0;
-    if (u_shadows > 0.5) {   // a light that casts no shadow has a dummy map that reads lit
+    // Only the shadow light's map is read: the scope light's is a dummy that reads lit, and a lookup costs about an
+    // eighth of a frame on a software rasteriser (Mesa's llvmpipe).
+    if (i == SHADOW_LIGHT && u_shadows > 0.5) {
         vec4 shadow_coord = p3d_LightSource[i].shadowViewMatrix * vec4(v_position, 1.0);
         lit = textureProj(p3d_LightSource[i].shadowMap, shadow_coord);
     }
@@ -99,7 +102,8 @@ void main() {
     vec3 v = normalize(-v_position);
     if (dot(n, v) < 0.0) n = -n;   // thin shapes seen from behind
     vec3 colour = p3d_LightModel.ambient.rgb * albedo;
-    for (int i = 0; i < 2; ++i) colour += spot_light(i, n, v, albedo);
+    colour += spot_light(0, n, v, albedo);
+    colour += spot_light(1, n, v, albedo);
     // The camera's response: a soft shoulder on the brightest channel (keeping the hue, so a near green
     // sphere stays green instead of burning white), then the display's gamma.
     float peak = max(max(colour.r, colour.g), colour.b);

@@ -82,8 +82,9 @@ class SceneMirror:
     def body_ids(self) -> list[int]:
         return list(self._bodies)
 
-    def sync(self) -> None:
-        """Add nodes for new bodies, drop those of removed ones, and copy every link's world pose."""
+    def sync(self, forward_kinematics: bool = True) -> None:
+        """Add nodes for new bodies, drop those of removed ones, and copy every link's world pose
+        (``forward_kinematics``: see :func:`~surrol_data.render.body_shapes.link_world_poses`)."""
         c = self.client
         present = {c.getBodyUniqueId(i) for i in range(c.getNumBodies())}
         for body in list(self._bodies):
@@ -97,7 +98,7 @@ class SceneMirror:
                     known[1].remove_node()
                 inertial_from_link = c.invertTransform(*body_shapes.base_inertial_frame(c, body))
                 self._bodies[body] = (shapes_now, *self._build_body(body, shapes_now), inertial_from_link)
-            self._place(body)
+            self._place(body, forward_kinematics)
 
     # ------------------------------------------------------------------ building
     def _build_body(self, body: int, visuals: tuple) -> tuple[NodePath, dict[int, NodePath]]:
@@ -185,7 +186,8 @@ class SceneMirror:
         return self._textures[kind]
 
     # ------------------------------------------------------------------ poses
-    def _place(self, body: int) -> None:
+    def _place(self, body: int, forward_kinematics: bool) -> None:
         _, node, links, inertial_from_link = self._bodies[body]
-        for link, pose in body_shapes.link_world_poses(self.client, body, links, inertial_from_link).items():
+        poses = body_shapes.link_world_poses(self.client, body, links, inertial_from_link, forward_kinematics)
+        for link, pose in poses.items():
             links[link].set_transform(_transform(*pose))

@@ -50,9 +50,10 @@ class EndoscopeStage:
         self.light = EndoscopeLight(self.root, shadows=shadows, shadow_map_size=shadow_map_size)
         self._pose = None
 
-    def update(self, world_T_eef) -> None:
-        """Copy the PyBullet poses and move the light to the endoscope at ``world_T_eef`` (4×4, real metres)."""
-        self.mirror.sync()
+    def update(self, world_T_eef, forward_kinematics: bool = True) -> None:
+        """Copy the PyBullet poses and move the light to the endoscope at ``world_T_eef`` (4×4, real metres);
+        ``forward_kinematics``: see :func:`~surrol_data.render.body_shapes.link_world_poses`."""
+        self.mirror.sync(forward_kinematics)
         axes = camera_axes(world_T_eef)
         up = tuple(-v for v in axes.down)
         self._pose = (axes.eye, axes.forward, up)

@@ -6,8 +6,8 @@ and rendering never stall another's) and talks to it over a pipe:
 * server → worker: ``("input", message)`` the page's input state, ``("latency", [ms, ...])`` what the page measured,
   ``("press", key)`` a session key (play / redo / discard / save / end as on the GUI), ``("task", name)``,
   ``("play", device)``, ``("quit",)``; and the writer's answers ``("recorded", index)`` / ``("record_failed", why)``;
-* worker → server: ``("ready", facts)``, ``("frame", header, jpeg)`` after every env step (and one preview per
-  task), ``("status", text)``, ``("episode", record)`` for every kept episode (it waits for the writer's answer:
+* worker → server: ``("ready", facts)``, ``("frame", header, jpeg)`` after every env step and, in an arm task, at
+  a third and two thirds of it (:data:`MID_STEP_VIEWS`), and one preview per task, ``("status", text)``, ``("episode", record)`` for every kept episode (it waits for the writer's answer:
   the session goes on only once the episode is durable), ``("session_ended", summary)``.
 
 A session is :func:`surrol_data.collect.haptic_source.collect_haptic` with the page's devices
@@ -37,6 +37,9 @@ from surrol_data.gui.hud import Hud, layout_keys
 
 SESSION_EPISODES = 10_000   # a session records until the operator ends it
 JPEG_QUALITY = 80
+# Views drawn inside an arm task's step besides the one after it: 3 per 0.2 s step, 15 per second, each of the state
+# the physics has reached, sent a third of a step apart (see SessionWorker._substep).
+MID_STEP_VIEWS = 2
 BROWSER_DEVICES = ("keyboard", "gamepad")
 
 
@@ -72,6 +75,9 @@ class SessionWorker:
         self._camera = self._camera_client = self._endoscope = None
         self._preview = None
         self.hud = Hud()
+        self._step_start: float | None = None   # when the step in progress began (its first physics substep)
+        self._step_sim_s = 0.0                  # simulated seconds of it so far
+        self._mid_views = 0                     # views of it sent so far
 
     # ------------------------------------------------------------------ the pipe
     def send(self, *message) -> None:
@@ -183,8 +189,43 @@ class SessionWorker:
         if step == 1:
             self.browser.start_episode()
             self.hud.limit_steps = env.spec.max_episode_steps if env.spec is not None else None
+            self._watch_substeps(env)
         self.hud.update(step, info, flags)
+        if self._mid_views and self.realtime:   # the step's last view a third of a step after its second
+            self._wait_until(self._step_start + self._mid_views * self.hud.period_s / (MID_STEP_VIEWS + 1))
+        self._step_start, self._step_sim_s, self._mid_views = None, 0.0, 0
         self.send_frame(env)
+
+    def _watch_substeps(self, env) -> None:
+        """Draw views between an arm task's steps too (an ECM task's steps come 10 a second; it has no substep hook).
+        Installed at the session's first step, so its first step has only the view after it."""
+        u = env.unwrapped
+        if hasattr(u, "substep_hook") and u.substep_hook is None:
+            u.substep_hook = self._substep
+
+    def _substep(self, u) -> None:
+        """After every physics substep of a step: once the physics has reached the next third of the step, that
+        state's view. Paced as the step's input is (by the control period, from the step's start), one third of a
+        step ahead of the physics: the first view of a step goes out as soon as the physics reaches it, the next a
+        third of a step later, and the one after the step (``_on_step``) another third later, so the page gets a
+        view every 67 ms, each a real state of the episode. Drawn without a forward-kinematics pass (which would
+        change the episode's next steps: views leave the episode as a replay of its actions gives it)."""
+        if self._step_start is None:
+            self._step_start = time.monotonic()
+        self._step_sim_s += u.client.getPhysicsEngineParameters()["fixedTimeStep"]
+        third = self.hud.period_s / (MID_STEP_VIEWS + 1)
+        if self._mid_views >= MID_STEP_VIEWS or self._step_sim_s < (self._mid_views + 1) * third - 1e-9:
+            return
+        if self.realtime:
+            self._wait_until(self._step_start + self._mid_views * third)
+        self._mid_views += 1
+        self.send_frame(u)
+
+    @staticmethod
+    def _wait_until(t: float) -> None:
+        delay = t - time.monotonic()
+        if delay > 0:
+            time.sleep(delay)
 
     def send_frame(self, env) -> None:
         from PIL import Image
@@ -217,7 +258,7 @@ class SessionWorker:
                 self.renderer = "tiny"
                 self._camera = make_camera(client, self.size, scene_scale=self._endoscope.scene_scale)
             self._camera_client = client
-        return self._camera.render(self._endoscope.pose()).rgb
+        return self._camera.render(self._endoscope.pose(), forward_kinematics=False).rgb
 
     # ------------------------------------------------------------------ recording (the server's writer)
     def _record(self, traj, provenance: dict, frames, meta: dict) -> int:
