@@ -46,7 +46,7 @@ import surrol_data.envs  # noqa: F401  (registers the ids)
 from surrol_data.envs import drawer, env_id, jacks, match_board, objects, peg_board, ring_board
 from surrol_data.envs.psm import JAW_JOINTS
 from surrol_data.envs import kinematics as kin
-from surrol_data.envs.psm_env import WORKSPACE, WORKSPACE_MARGIN
+from surrol_data.envs.psm_env import WORKSPACE, tip_clip_box
 from surrol_data.envs.tasks.match_board import MatchBoard
 from surrol_data.envs.tasks.match_board_panel import MatchBoardPanel
 from surrol_data.envs.tasks.pick_and_place import PickAndPlace
@@ -303,8 +303,7 @@ def check_end(task: str, probe: Probe, res: Result) -> None:
 
 def tip_boxes(env) -> list[tuple[np.ndarray, np.ndarray]]:
     """Each arm's tip clip box in xy (low, high corners; real metres): its workspace and the target margin."""
-    spaces = getattr(env, "WORKSPACES", (WORKSPACE,))
-    return [(ws[:2, 0] - WORKSPACE_MARGIN[:2, 0], ws[:2, 1] + WORKSPACE_MARGIN[:2, 1]) for ws in spaces]
+    return [(box[:2, 0], box[:2, 1]) for box in map(tip_clip_box, getattr(env, "WORKSPACES", (WORKSPACE,)))]
 
 
 # ---------------------------------------------------------------------- runs
@@ -501,8 +500,8 @@ def run_tracking(task: str, episodes: int) -> Result:
             tip0 = tip()
             want = a * ACTION_POSITION_M
             target = tip0 + want
-            clipped = np.any(target < ws[:, 0] - WORKSPACE_MARGIN[:, 0]) or np.any(target > ws[:, 1]
-                                                                                    + WORKSPACE_MARGIN[:, 1])
+            box = tip_clip_box(ws)
+            clipped = np.any(target < box[:, 0]) or np.any(target > box[:, 1])
             reachable = psm.ik(kin.pose_from(target, (u.tip_pose(arm) if bimanual else u.tip_pose())[:3, :3]))
             timed_step(env, act(a), res, probe, [held, False])
             touched = psm.body in probe.step_touch

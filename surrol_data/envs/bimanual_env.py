@@ -37,7 +37,7 @@ from surrol_data.envs.numeric import clip
 from surrol_data.envs.psm import Psm
 from surrol_data.envs.psm_env import (ACTION_PITCH_RAD, PITCH_LIMIT_RAD, PSM1_BASE_YAW_RAD, PSM1_RCM,  # noqa: F401
                                       PSM2_BASE_YAW_RAD, ROTATION_MODES,  # noqa: F401
-                                      WORKSPACE_MARGIN, PsmEnv, approach_direction, tilted_tool,
+                                      PsmEnv, approach_direction, tilted_tool, tip_clip_box,
                                       tip_orientation_features, tool_down, wrap_angle)
 from surrol_data.envs.units import ACTION_POSITION_M, ACTION_YAW_RAD, SCALING
 
@@ -57,7 +57,7 @@ class BimanualEnv(PsmEnv):
     ACTION_DIM = 10
     OBSERVATION_DIM = 35
     ROTATION_MODE = ("yaw", "yaw")          # per arm, "yaw" or "pitch"
-    # Per-arm tip workspaces (real metres, rows x/y/z as [low, high]); commands may leave them by WORKSPACE_MARGIN.
+    # Per-arm tip workspaces (real metres, rows x/y/z as [low, high]); commands are clipped to tip_clip_box of them.
     WORKSPACES = (np.array([[0.50, 0.60], [0.0, 0.05], [0.675, 0.745]]),
                   np.array([[0.50, 0.60], [-0.05, 0.0], [0.675, 0.745]]))
     HELD_AT_START: int | None = None        # index of the arm that holds the object when an episode starts
@@ -71,6 +71,8 @@ class BimanualEnv(PsmEnv):
                                  f"got {mode!r}")
         super().__init__(render_mode=render_mode, **kwargs)
         self._tips = [np.eye(4), np.eye(4)]
+        self._target_boxes = [tuple(np.ascontiguousarray(side) for side in tip_clip_box(ws).T)
+                              for ws in self.WORKSPACES]
 
     # ------------------------------------------------------------------ to be declared by tasks
     def reset_task(self, rng: np.random.Generator) -> tuple[ArmStart, ArmStart]:
@@ -178,9 +180,8 @@ class BimanualEnv(PsmEnv):
 
     def _apply_arm_action(self, arm: int, action: np.ndarray) -> None:
         pose = self._tips[arm]
-        ws = self.WORKSPACES[arm]
         target = pose[:3, 3] + action[:3] * ACTION_POSITION_M
-        target = clip(target, ws[:, 0] - WORKSPACE_MARGIN[:, 0], ws[:, 1] + WORKSPACE_MARGIN[:, 1])
+        target = clip(target, *self._target_boxes[arm])
         angle = self._rotation_angle(arm, pose)
         if self.ROTATION_MODE[arm] == "pitch":
             angle = float(min(max(angle + action[3] * ACTION_PITCH_RAD, -PITCH_LIMIT_RAD), PITCH_LIMIT_RAD))

@@ -45,8 +45,15 @@ WORKSPACE = np.array([[0.50, 0.60], [-0.05, 0.05], [0.675, 0.745]])
 # Commanded tip targets may leave the sampling workspace by this much (low side, high side): the reference's
 # margins (±0.02 xy, +0.08 z) are in its scaled units, i.e. ±4 mm / +16 mm real.
 WORKSPACE_MARGIN = np.array([[0.02, 0.02], [0.02, 0.02], [0.0, 0.08]]) / SCALING
-_TARGET_LOW = WORKSPACE[:, 0] - WORKSPACE_MARGIN[:, 0]
-_TARGET_HIGH = WORKSPACE[:, 1] + WORKSPACE_MARGIN[:, 1]
+
+
+def tip_clip_box(workspace: np.ndarray = WORKSPACE) -> np.ndarray:
+    """Where commanded tip targets are clipped to (rows x/y/z as [low, high], real metres): ``workspace`` widened by
+    WORKSPACE_MARGIN. Whatever the tool pushes can go no further than its xy (the rim of a scene of loose objects)."""
+    return np.stack([workspace[:, 0] - WORKSPACE_MARGIN[:, 0], workspace[:, 1] + WORKSPACE_MARGIN[:, 1]], axis=1)
+
+
+_TARGET_LOW, _TARGET_HIGH = (np.ascontiguousarray(side) for side in tip_clip_box().T)
 # Tool-down tip frame: columns are tip x (wrist-yaw axis), tip y (jaw-opening direction), tip z (down).
 _TOOL_DOWN = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 _TOOL_DOWN_T = _TOOL_DOWN.T

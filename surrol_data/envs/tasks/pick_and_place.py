@@ -23,7 +23,7 @@ from surrol_data.envs import jacks, objects
 from surrol_data.envs import kinematics as kin
 from surrol_data.envs import physics
 from surrol_data.envs.numeric import all_last
-from surrol_data.envs.psm_env import WORKSPACE, WORKSPACE_MARGIN, PsmEnv, wrap_angle
+from surrol_data.envs.psm_env import WORKSPACE, PsmEnv, tip_clip_box, wrap_angle
 
 OPEN, CLOSE = 0.5, -0.5
 
@@ -59,7 +59,7 @@ class PickAndPlace(PsmEnv):
 
     # ------------------------------------------------------------------ scene
     def build_scene(self) -> None:
-        objects.make_rim(self.client, (WORKSPACE - WORKSPACE_MARGIN * [[1, -1]])[:2], visual=self.visual)
+        objects.make_rim(self.client, tip_clip_box()[:2], visual=self.visual)
         self.trays = [jacks.make_colour_tray(self.client, slot, jacks.COLOURS[c], visual=self.visual)
                       for slot, c in zip(self.TRAY_SLOTS, self.COLOURS)]
         self._jack_specs = [jacks.jack_spec(self.client, jacks.COLOURS[c], visual=self.visual) for c in self.COLOURS]
