@@ -21,12 +21,10 @@ def pick_renderer(renderer: str) -> str:
     if renderer != "auto":
         return renderer
     try:
-        from surrol_data.render.display import offscreen_pipe
-
-        offscreen_pipe()
-        return "panda3d"
-    except Exception:   # no panda3d, no EGL: TinyRenderer draws everywhere
+        from surrol_data.render.display import best_renderer
+    except ImportError:   # no panda3d: TinyRenderer draws everywhere
         return "tiny"
+    return best_renderer()
 
 
 def serve(out: str | Path, tasks: list[str], host: str = DEFAULT_HOST, port: int = DEFAULT_PORT,
