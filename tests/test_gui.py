@@ -61,7 +61,19 @@ def test_gui_play_save_exit_records_a_valid_dataset(tmp_path):
     assert row["source"] == "haptic" and row["device"] == "simulated-operator"
     assert row["skill"] == "expert" and row["operator_id"] == "trainee-7"
     # Saved as it stood: the steps before the click, no more.
-    assert len(reader.trajectory(int(row["episode_index"])).action) == SAVE_AT_STEP
+    traj = reader.trajectory(int(row["episode_index"]))
+    assert len(traj.action) == SAVE_AT_STEP
+    # And as its actions give it without a window: drawing the view left the episode as it was (the scene is read
+    # without PyBullet's forward-kinematics pass, which moves the physics' next results).
+    import gymnasium as gym
+
+    from surrol_data.envs import env_id
+
+    env = gym.make(env_id("NeedlePick"))
+    env.reset(seed=int(row["seed"]))
+    for action, observation in zip(traj.action, traj.observation[1:], strict=True):
+        assert np.array_equal(env.step(action)[0]["observation"], observation)
+    env.close()
 
 
 def test_keyboard_keys_of_the_window_drive_the_tool(tmp_path, capsys):
