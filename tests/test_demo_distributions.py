@@ -1,4 +1,5 @@
-"""demos.md shows each demo source's per-demo distributions (steps, path, failed attempts, retries), not only means."""
+"""demos.md shows each demo source's per-demo distributions (steps, path, failed attempts, retries), not only means, and
+what each set is matched to."""
 
 from __future__ import annotations
 
@@ -28,3 +29,29 @@ def test_per_demo_distributions_take_steps_and_path_over_successes_and_counts_ov
 def test_a_source_without_attempt_records_shows_dashes():
     table = demo_distributions_markdown([{"source": "script", "per_demo": {"steps_to_success": [109.0]}}])
     assert table.splitlines()[-1] == "| script | 109 [109–109], 109–109 | — | — | — | — | — |"
+
+
+def test_a_task_without_the_papers_demo_figures_matches_its_sources_to_one_another(monkeypatch, tmp_path):
+    """NeedlePick's sources are judged against the paper's demo sets; another task's against the sources' mean."""
+    from types import SimpleNamespace
+
+    import surrol_data.evaluation.assess as assess
+    from surrol_data.study.demo_sets import demo_quality, demo_quality_markdown
+
+    per_source = {"scripted": (120.0, 12.0), "novice": (125.0, 12.0), "expert": (130.0, 12.0)}
+    rest = dict.fromkeys(("sparc", "log_dimensionless_jerk", "idle_time_s", "failed_grasps", "jaw_closures",
+                          "clutch_uses"), 0.0)
+    episodes = pd.DataFrame([{"skill": skill, "success": True, "steps_to_success": steps, "path_length_cm": path, **rest}
+                             for skill, (steps, path) in per_source.items()])
+    monkeypatch.setattr(assess, "assess_dataset", lambda path: SimpleNamespace(episodes=episodes))
+    sets = {source: tmp_path / "set" for source in ("script", "novice", "expert")}
+
+    # NeedlePick: against the paper's 109 / 117 / 113 steps, the script's 120 (+10.1 %) and the expert's 130 (+15 %) miss
+    paper = demo_quality(sets)
+    assert [(r["paper_steps"], r["matched"]) for r in paper] == [(109.0, "no"), (117.0, "yes"), (113.0, "no")]
+    assert "Paper steps" in demo_quality_markdown(paper, True) and "near the needle" in demo_quality_markdown(paper, True)
+    # Another task: against the sources' mean (125 steps, 12 cm), all three are within ±10 %
+    other = demo_quality(sets, "PegTransfer")
+    assert [(r["paper_steps"], r["paper_path"], r["matched"]) for r in other] == [(125.0, 12.0, "yes")] * 3
+    text = demo_quality_markdown(other, True, "PegTransfer")
+    assert "matched to one another" in text and "Sources' mean steps" in text and "near the object" in text

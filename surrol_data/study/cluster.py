@@ -82,7 +82,7 @@ def submit_study(experiment: str, out: str | Path, options: SlurmOptions, *, nat
     out = Path(out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     sets, _ = prepare_demo_sets(spec, out, build=build_demos, progress=progress)
-    (out / "demos.md").write_text(f"# Demonstrations\n\n{demo_quality_markdown(demo_quality(sets), spec.matched)}")
+    (out / "demos.md").write_text(f"# Demonstrations\n\n{demo_quality_markdown(demo_quality(sets, spec.task), spec.matched, spec.task)}")
     standing = {job.run: job for job in run_jobs(out, spec)}
     busy = [r for r, job in standing.items() if job.state in ACTIVE]
     if runs:

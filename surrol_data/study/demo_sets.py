@@ -17,15 +17,14 @@ from surrol_data.evaluation.report import Column, metrics_table_markdown
 from surrol_data.study.spec import SKILL_OF_SOURCE, StudySpec, operator_ids
 
 MANIFEST = "demo_sets.json"
-# The paper's demo sets (NeedlePick, 100 episodes each): mean completion steps and tool-tip path.
+# The paper's demo sets (NeedlePick, 100 episodes each): mean completion steps and tool-tip path. A study of another
+# task matches its sources to one another instead: each within MATCH_TOLERANCE of the sources' mean.
+PAPER_TASK = "NeedlePick"
 PAPER_DEMOS = {"expert": (113.0, 12.1), "novice": (117.0, 12.5), "script": (109.0, 11.7)}
 MATCH_TOLERANCE = 0.10
-DEMO_COLUMNS = (
-    Column("source", "Source"), Column("episodes", "Episodes"),
-    Column("steps_to_success", "Steps to complete", lambda v: f"{v:.1f}"),
-    Column("paper_steps", "Paper steps", lambda v: f"{v:.0f}"),
-    Column("path_length_cm", "Path (cm)", lambda v: f"{v:.2f}"),
-    Column("paper_path", "Paper path (cm)", lambda v: f"{v:.1f}"),
+_FIRST_COLUMNS = (Column("source", "Source"), Column("episodes", "Episodes"),
+                  Column("steps_to_success", "Steps to complete", lambda v: f"{v:.1f}"))
+_LATER_COLUMNS = (
     Column("matched", "Within ±10 %", str),
     Column("sparc", "SPARC", lambda v: f"{v:.2f}"),
     Column("log_dimensionless_jerk", "LDLJ", lambda v: f"{v:.1f}"),
@@ -36,6 +35,15 @@ DEMO_COLUMNS = (
     Column("jaw_closures", "Jaw closures", lambda v: f"{v:.2f}"),
     Column("clutch_uses", "Clutch", lambda v: f"{v:.1f}"),
 )
+
+
+def demo_columns(task: str = PAPER_TASK) -> tuple[Column, ...]:
+    """The demo table's columns: beside each source's steps and path, the paper's (NeedlePick) or the sources' mean
+    (another task), which "Within ±10 %" compares them with."""
+    against = "Paper" if task == PAPER_TASK else "Sources' mean"
+    return (*_FIRST_COLUMNS, Column("paper_steps", f"{against} steps", lambda v: f"{v:.0f}"),
+            Column("path_length_cm", "Path (cm)", lambda v: f"{v:.2f}"),
+            Column("paper_path", f"{against} path (cm)", lambda v: f"{v:.1f}"), *_LATER_COLUMNS)
 
 
 class DemoSetError(ValueError):
@@ -164,8 +172,9 @@ def check_shipped(root: Path, spec: StudySpec) -> dict[str, str]:
     return hashes
 
 
-def demo_quality(sets: dict[str, Path]) -> list[dict]:
-    """One row per demo source: the assessment's per-skill means with the paper's demo figures beside them."""
+def demo_quality(sets: dict[str, Path], task: str = PAPER_TASK) -> list[dict]:
+    """One row per demo source: the assessment's per-skill means with what they are matched to beside them: the
+    paper's demo figures on its task (NeedlePick), the sources' mean steps and path on another."""
     from surrol_data.evaluation.assess import assess_dataset
 
     rows = []
@@ -177,21 +186,27 @@ def demo_quality(sets: dict[str, Path]) -> list[dict]:
         ep = result.episodes[result.episodes["skill"] == SKILL_OF_SOURCE[source]]
         ok = ep[ep["success"]]
         steps, path_cm = float(ok["steps_to_success"].mean()), float(ok["path_length_cm"].mean())
-        paper_steps, paper_path = PAPER_DEMOS[source]
-        within = (abs(steps / paper_steps - 1) <= MATCH_TOLERANCE and abs(path_cm / paper_path - 1) <= MATCH_TOLERANCE)
 
         def mean(frame, col):
             v = frame[col].astype(float)
             return float(v.mean()) if v.notna().any() else math.nan
 
-        rows.append({"source": source, "episodes": len(ep), "steps_to_success": steps, "paper_steps": paper_steps,
+        rows.append({"source": source, "episodes": len(ep), "steps_to_success": steps,
                      "failed_attempts": mean(ep, "failed_attempts") if "failed_attempts" in ep else math.nan,
                      "retries": mean(ep, "retries") if "retries" in ep else math.nan,
-                     "per_demo": _per_demo(ep),
-                     "path_length_cm": path_cm, "paper_path": paper_path, "matched": "yes" if within else "no",
+                     "per_demo": _per_demo(ep), "path_length_cm": path_cm,
                      "sparc": mean(ok, "sparc"), "log_dimensionless_jerk": mean(ok, "log_dimensionless_jerk"),
                      "idle_time_s": mean(ep, "idle_time_s"), "failed_grasps": mean(ep, "failed_grasps"),
                      "jaw_closures": mean(ep, "jaw_closures"), "clutch_uses": mean(ep, "clutch_uses")})
+    for row in rows:
+        if task == PAPER_TASK:
+            row["paper_steps"], row["paper_path"] = PAPER_DEMOS[row["source"]]
+        else:
+            row["paper_steps"] = sum(r["steps_to_success"] for r in rows) / len(rows)
+            row["paper_path"] = sum(r["path_length_cm"] for r in rows) / len(rows)
+        within = (abs(row["steps_to_success"] / row["paper_steps"] - 1) <= MATCH_TOLERANCE
+                  and abs(row["path_length_cm"] / row["paper_path"] - 1) <= MATCH_TOLERANCE)
+        row["matched"] = "yes" if within else "no"
     return rows
 
 
@@ -243,15 +258,17 @@ def demo_distributions_markdown(rows: list[dict]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def demo_quality_markdown(rows: list[dict], matched: bool) -> str:
-    kind = "matched to the paper's demo sets" if matched else "natural (each operator's own pace; not matched)"
+def demo_quality_markdown(rows: list[dict], matched: bool, task: str = PAPER_TASK) -> str:
+    kind = ("natural (each operator's own pace; not matched)" if not matched else "matched to the paper's demo sets"
+            if task == PAPER_TASK else "matched to one another (each source's steps and path within ±10 % of the "
+            "sources' mean)")
     return (f"Demo sets {kind}. Steps and path: means over successful episodes; smoothness (SPARC, LDLJ: higher is "
             "smoother) from the device trace where there is one (the simulated operators'), from the tool tip for "
             "the script; idle, failed grasps, failed attempts, retries, jaw closures and clutch uses: means per "
             "episode. "
-            "A failed attempt is a grasp attempt near the needle that never held it or lost it before a 5 mm lift, a "
+            f"A failed attempt is a grasp attempt near the {'needle' if 'Needle' in task else 'object'} that never held it or lost it before a 5 mm lift, a "
             "retry an attempt after a failed one (datasets/attempts.py); successful demos may contain both. The human "
             "demos come from simulated operators (a motor-control model), not from people.\n\n"
-            + metrics_table_markdown(rows, DEMO_COLUMNS)
+            + metrics_table_markdown(rows, demo_columns(task))
             + "\nPer demo: median [quartiles], range (steps and path over successful demos; counts over all demos).\n\n"
             + demo_distributions_markdown(rows))

@@ -219,7 +219,7 @@ def run_study(experiment: str, out: str | Path, *, natural: bool = False, overri
     out = Path(out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     sets, hashes = prepare_demo_sets(spec, out, build=build_demos, progress=progress)
-    demo_md = demo_quality_markdown(demo_quality(sets), spec.matched)
+    demo_md = demo_quality_markdown(demo_quality(sets, spec.task), spec.matched, spec.task)
     (out / "demos.md").write_text(f"# Demonstrations\n\n{demo_md}")
 
     done = finished_runs(out, spec)
