@@ -1,6 +1,8 @@
 """The web console's frame rate and input-to-frame latency for 1 and 2 browsers (headless Chromium), as a table.
 
-Per configuration: a server (``surrol_data.web.serve``) on a free port, N pages in one headless Chromium (each its
+First row (browsers 0): one session process alone, driven over its pipe as the server drives it, with a key held:
+the views it streams per second with no browser on this machine (operators' browsers run on their own machines).
+Then per configuration: a server (``surrol_data.web.serve``) on a free port, N pages in one headless Chromium (each its
 own browser context: another person's browser), each with an operator who presses play and then taps the left/right
 keys (held 0.4 s, released 0.4 s) for ``--seconds``. Measured in the pages:
 
@@ -62,7 +64,7 @@ def run(browsers: int, mode: str, seconds: float, size: tuple[int, int], task: s
             pages = [browser.new_page() for _ in range(browsers)]
             for i, page in enumerate(pages):
                 page.goto(url)
-                page.wait_for("document.getElementById('who').open")
+                page.wait_for("document.getElementById('who')?.open")
                 page.js(f"localStorage.setItem('surrol.operator', 'bench{i}'); "
                         "localStorage.setItem('surrol.skill', 'unknown'); location.reload()")
                 page.wait_for("window.consoleStats && window.consoleStats.frames > 0 && "
@@ -107,6 +109,43 @@ def run(browsers: int, mode: str, seconds: float, size: tuple[int, int], task: s
             "cpu_ms_per_frame": 1000 * cpu / max(frames, 1)}
 
 
+def run_without_page(seconds: float, size: tuple[int, int], task: str, renderer: str) -> dict:
+    """One session process alone, driven over its pipe as the server drives it (a key held): the views it streams per
+    second and the gaps between them, with no browser on this machine (where operators' browsers run elsewhere,
+    this is what the server gives each of them)."""
+    import multiprocessing
+
+    from surrol_data.web.worker import worker_main
+
+    ctx = multiprocessing.get_context("spawn")
+    ours, theirs = ctx.Pipe()
+    proc = ctx.Process(target=worker_main, args=(theirs, task, "bench", "unknown", 0, size, renderer, True), daemon=True)
+    proc.start()
+    try:
+        while ours.recv()[0] != "task":
+            pass
+        ours.send(("play", "keyboard"))
+        stamps: list[float] = []
+        cpu0 = None
+        while not stamps or stamps[-1] - stamps[0] < seconds:
+            message = ours.recv()
+            if message[0] == "frame" and message[1]["hud"]["playing"]:
+                if cpu0 is None:
+                    cpu0 = cpu_seconds(proc.pid)
+                    ours.send(("input", {"seq": 1, "keys": ["a", "s"]}))
+                stamps.append(time.monotonic())
+        cpu = cpu_seconds(proc.pid) - cpu0
+        ours.send(("quit",))
+    finally:
+        proc.join(30)
+        if proc.is_alive():
+            proc.kill()
+    gaps = np.diff(stamps) * 1000
+    return {"browsers": "0 (pipe)", "mode": "paced", "fps": (len(stamps) - 1) / (stamps[-1] - stamps[0]),
+            "lat_median": float("nan"), "lat_p95": float("nan"), "latencies": 0,
+            "cpu_ms_per_frame": 1000 * cpu / (len(stamps) - 1), "gaps": (np.median(gaps), np.percentile(gaps, 95))}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seconds", type=float, default=20.0, help="measured time per configuration")
@@ -122,14 +161,18 @@ def main() -> None:
 
     size = tuple(int(v) for v in args.size.split("x"))
     renderer = pick_renderer(args.renderer)
-    rows = [run(n, mode, args.seconds, size, args.task, renderer) for mode in args.modes for n in args.browsers]
+    rows = [run_without_page(args.seconds, size, args.task, renderer)]
+    rows += [run(n, mode, args.seconds, size, args.task, renderer) for mode in args.modes for n in args.browsers]
     print(f"\nweb console, {args.task}, {renderer} view {size[0]}x{size[1]}, {args.seconds:.0f} s per row "
-          f"(wall-clock figures depend on the machine's load; CPU ms/frame much less)\n")
+          f"(wall-clock figures depend on the machine's load; CPU ms/frame much less). Browsers 0: the session "
+          f"process alone, read from its pipe (gaps between views: median {rows[0]['gaps'][0]:.0f} ms, p95 "
+          f"{rows[0]['gaps'][1]:.0f} ms); the others: pages in a headless Chromium on this machine\n")
     print("| browsers | stepping | frames/s per browser | latency median (ms) | latency p95 (ms) | latencies | "
           "CPU ms/frame |")
     print("|---:|---|---:|---:|---:|---:|---:|")
     for r in rows:
-        print(f"| {r['browsers']} | {r['mode']} | {r['fps']:.1f} | {r['lat_median']:.0f} | {r['lat_p95']:.0f} | "
+        latency = [f"{v:.0f}" if np.isfinite(v) else "—" for v in (r["lat_median"], r["lat_p95"])]
+        print(f"| {r['browsers']} | {r['mode']} | {r['fps']:.1f} | {latency[0]} | {latency[1]} | "
               f"{r['latencies']} | {r['cpu_ms_per_frame']:.0f} |")
 
 

@@ -103,9 +103,10 @@ def test_serve_refuses_bad_arguments_in_one_line():
 
 
 def test_a_session_streams_three_views_a_step_each_a_state_the_episode_passes_through_and_leaves_it_as_it_is():
-    """One browser's process, driven over its pipe as the server drives it: while the operator holds a key, every arm
-    step after the first streams three views (15 a second), each the image of a physics substep's state, in order,
-    the last the step's end; and the saved episode is what its actions give without any view drawn."""
+    """One browser's process, driven over its pipe as the server drives it (unpaced: the steps back to back, so that
+    no view is left out on a busy machine): while the operator holds a key, every arm step streams three views, each
+    the image of a physics substep's state, in order, the last the step's end; and the saved episode is what its
+    actions give without any view drawn."""
     import io
     import multiprocessing
 
@@ -113,14 +114,15 @@ def test_a_session_streams_three_views_a_step_each_a_state_the_episode_passes_th
     from PIL import Image
 
     from surrol_data.envs import env_id
-    from surrol_data.envs.camera import make_camera
     from surrol_data.render.env_view import EnvEndoscope
-    from surrol_data.web.worker import JPEG_QUALITY, MID_STEP_VIEWS, worker_main
+    from surrol_data.render.panda_camera import PandaEndoscopeCamera
+    from surrol_data.web.worker import (JPEG_QUALITY, MID_STEP_VIEWS, STREAM_MULTISAMPLES, STREAM_SHADOW_MAP,
+                                        worker_main)
 
     size, seed = (96, 72), 5
     ctx = multiprocessing.get_context("spawn")
     ours, theirs = ctx.Pipe()
-    worker = ctx.Process(target=worker_main, args=(theirs, "NeedlePick", "op.1", "novice", seed, size, "panda3d"),
+    worker = ctx.Process(target=worker_main, args=(theirs, "NeedlePick", "op.1", "novice", seed, size, "panda3d", False),
                          daemon=True)
     worker.start()
     try:
@@ -137,7 +139,7 @@ def test_a_session_streams_three_views_a_step_each_a_state_the_episode_passes_th
         receive("status")
         ours.send(("input", {"seq": 1, "keys": ["a", "s"]}))   # left and toward the operator: the tool moves
         views = []
-        while len(views) < 1 + 3 * 7:
+        while len(views) < 3 * 7:
             views.append(receive("frame")[2])
         ours.send(("press", "enter"))
         while True:   # the views streamed before the saved episode are all of it
@@ -155,7 +157,7 @@ def test_a_session_streams_three_views_a_step_each_a_state_the_episode_passes_th
         if worker.is_alive():
             worker.kill()
     traj = record["traj"]
-    assert record["provenance"]["seed"] == seed and len(views) == 1 + 3 * (len(traj.action) - 1)
+    assert record["provenance"]["seed"] == seed and len(views) == 3 * len(traj.action)
 
     # The episode again, from its actions, with no view drawn: the same, to the bit.
     env = gym.make(env_id("NeedlePick"), render_mode="rgb_array")
@@ -168,7 +170,8 @@ def test_a_session_streams_three_views_a_step_each_a_state_the_episode_passes_th
     # each streamed view is one of them, in order, three a step (at a third, two thirds and the end of the step).
     env.reset(seed=seed)
     endoscope = EnvEndoscope(env)
-    camera = make_camera(env.unwrapped.client, size, scene_scale=endoscope.scene_scale, renderer="panda3d")
+    camera = PandaEndoscopeCamera(env.unwrapped.client, size, endoscope.scene_scale, multisamples=STREAM_MULTISAMPLES,
+                                  shadow_map_size=STREAM_SHADOW_MAP)
 
     def jpeg() -> bytes:
         buffer = io.BytesIO()
@@ -183,13 +186,59 @@ def test_a_session_streams_three_views_a_step_each_a_state_the_episode_passes_th
         substeps.clear()
         env.step(action)
         n = len(substeps)
-        shown = [n] if k == 0 else [n // 3, 2 * n // 3, n]   # the substeps (1-based) the step's views show
+        shown = [n // 3, 2 * n // 3, n]   # the substeps (1-based) the step's views show
         assert views[at:at + len(shown)] == [substeps[i - 1] for i in shown], (k, shown)
         moving += len(set(views[at:at + len(shown)])) == len(shown) > 1   # the tool moved between them
         at += len(shown)
     assert at == len(views) and moving >= len(traj.action) // 2
     camera.close()
     env.close()
+
+
+def test_a_paced_session_sends_views_a_third_of_a_step_apart_and_leaves_late_ones_out():
+    """The worker's pacing on a clock of its own: views at a third, two thirds and the end of each 0.2 s step, a third
+    of a step apart; a view that would be late is left out, a step that began late has only its end view (sent at
+    once), and the robot keeps its pace."""
+    from types import SimpleNamespace
+
+    import surrol_data.web.worker as worker_module
+    from surrol_data.web.worker import SessionWorker
+
+    clock = SimpleNamespace(now=100.0)
+    worker_module.time = SimpleNamespace(monotonic=lambda: clock.now, sleep=lambda s: setattr(clock, "now", clock.now + s),
+                                         time=lambda: clock.now)
+    try:
+        sent: list[float] = []
+        worker = SessionWorker(conn=None, task="NeedlePick", operator_id="op", skill="novice", seed=0, size=(64, 48),
+                               renderer="tiny", realtime=True)
+        worker.hud.period_s = 0.2
+        worker.send_frame = lambda env: sent.append(round(clock.now - 100.0, 4))
+        client = SimpleNamespace(getPhysicsEngineParameters=lambda: {"fixedTimeStep": 0.2 / 12})
+        env = SimpleNamespace(unwrapped=SimpleNamespace(substep_hook=None, client=client), spec=None)
+        worker._on_reset(env, None, {})
+        assert env.unwrapped.substep_hook == worker._substep
+
+        def step(start: float, draw_s: float = 0.0) -> list[float]:
+            """One step starting at ``start`` (s after the clock's origin) whose views each take ``draw_s``."""
+            clock.now = max(clock.now, 100.0 + start)
+            del sent[:]
+            worker.send_frame = lambda env: (sent.append(round(clock.now - 100.0, 4)),
+                                             setattr(clock, "now", clock.now + draw_s))
+            for _ in range(12):
+                env.unwrapped.substep_hook(env.unwrapped)
+            worker._on_step(env, 1, None, {"tip_position": [0.5, 0.0, 0.7], "is_success": False}, {})
+            return list(sent)
+
+        third = 0.2 / 3
+        assert step(0.0) == [0.0, round(third, 4), round(2 * third, 4)]   # on time: three views, a third apart
+        assert step(0.2) == [0.2, round(0.2 + third, 4), round(0.2 + 2 * third, 4)]
+        # Views that take 0.12 s: by the time the first is drawn, the second's has passed by more than half a third.
+        assert step(0.4, draw_s=0.12) == [0.4, round(0.4 + 2 * third, 4)]
+        # So the next step begins late (at 0.6533 instead of 0.6): only its end view, at once.
+        assert step(0.6, draw_s=0.12) == [round(0.4 + 2 * third + 0.12, 4)]
+        assert step(0.8) == [0.8, round(0.8 + third, 4), round(0.8 + 2 * third, 4)]   # back on time
+    finally:
+        worker_module.time = time
 
 
 # ---------------------------------------------------------------------- in Chromium
@@ -226,7 +275,7 @@ def console_server(out: Path, *tasks: str):
 
 def enter_operator(page, url: str, operator: str, skill: str) -> None:
     page.goto(url)
-    page.wait_for("document.getElementById('who').open")
+    page.wait_for("document.getElementById('who')?.open")
     page.js("document.getElementById('who-id').focus()")
     page.type_text(operator)
     page.js(f"document.getElementById('who-skill-select').value = '{skill}'")
@@ -306,7 +355,7 @@ def test_in_chromium_a_page_without_the_token_gets_nothing_and_the_operator_is_a
         page = browser.new_page()
         refused_without_the_token(page, url)
         page.goto(url)
-        page.wait_for("document.getElementById('who').open")
+        page.wait_for("document.getElementById('who')?.open")
         assert page.js("document.querySelectorAll('#tasks li').length") == 2
         assert page.js("fetch(`/api/tasks/NeedlePick.png`).then(r => r.headers.get('content-type'))") == "image/png"
         assert page.js("fetch(`/api/tasks/..%2F..%2Fpyproject.toml.png`).then(r => r.status)") == 404

@@ -102,7 +102,7 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
                    realtime: bool | None = None, key_tracker=None, on_step=None,
                    env_kwargs: dict | None = None, profile: str | None = None,
                    policy: Policy | str | None = None, policy_info: dict | None = None,
-                   timeout_needs_save: bool = False, episode_sink=None) -> HapticResult:
+                   timeout_needs_save: bool = False, episode_sink=None, on_reset=None) -> HapticResult:
     """Record ``episodes`` kept teleoperated episodes of ``task`` into the dataset at ``out``.
 
     ``device``: a name of :data:`surrol_data.collect.devices.DEVICE_NAMES` (one device per arm is built with
@@ -115,7 +115,8 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
     (:func:`control_period_s`; default: for human devices only). ``key_tracker``: the key source of a host window
     (the training GUI) for keyboard devices and the session keys; the window shows the keys, so the session does
     not print them. ``on_step(env, step, obs, info, flags)``: called after every env step
-    (``step`` counts from 1 in each attempt), e.g. to draw a frame. ``env_kwargs``: extra ``gym.make`` arguments.
+    (``step`` counts from 1 in each attempt), e.g. to draw a frame; ``on_reset(env, obs, info)``: after each attempt's
+    reset, before its first step. ``env_kwargs``: extra ``gym.make`` arguments.
     ``profile``: the simulated operator's profile when not the skill's natural one, e.g. ``expert_matched`` (see
     :data:`surrol_data.collect.operator.profiles.MATCHED_PROFILES`); its skill must be ``skill``.
     ``policy``: an intervention session (see the module docstring): the policy acts and the operator takes over;
@@ -164,7 +165,7 @@ def collect_haptic(task: str, episodes: int, out: str | Path, *, device: str | S
         return _Session(env, eid, episodes, out, device, names, operator_id, skill, sides, mapping, trace, seed,
                         horizon, keep_failures, append, gui, rerun_live, max_attempts or 3 * episodes, progress,
                         command, library, realtime, key_tracker, on_step, profile, policy, policy_info,
-                        timeout_needs_save, renderer_of(env_kwargs), episode_sink).run()
+                        timeout_needs_save, renderer_of(env_kwargs), episode_sink, on_reset).run()
     finally:
         env.close()
 
@@ -263,13 +264,13 @@ class _Session:
     def __init__(self, env, eid, episodes, out, device, names, operator_id, skill, sides, mapping, trace, seed,
                  horizon, keep_failures, append, gui, rerun_live, max_attempts, progress, command, library,
                  realtime, key_tracker=None, on_step=None, profile=None, policy=None, policy_info=None,
-                 timeout_needs_save=False, camera_renderer=DEFAULT_CAMERA_RENDERER, episode_sink=None):
+                 timeout_needs_save=False, camera_renderer=DEFAULT_CAMERA_RENDERER, episode_sink=None, on_reset=None):
         self.timeout_needs_save = timeout_needs_save
         self.env, self.eid, self.episodes, self.out = env, eid, episodes, Path(out)
         self.task = eid.split("/")[1].rsplit("-v", 1)[0]
         self.operator_id, self.skill, self.seed, self.horizon = operator_id, skill, seed, horizon
         self.keep_failures, self.max_attempts, self.progress = keep_failures, max_attempts, progress
-        self.gui, self.command, self.on_step = gui, command, on_step
+        self.gui, self.command, self.on_step, self.on_reset = gui, command, on_step, on_reset
         act_dim = env.action_space.shape[0]
         self.ecm_only = is_ecm_action(act_dim)   # one camera, one device
         self.control_period_s = control_period_s(env)
@@ -431,6 +432,8 @@ class _Session:
         settings = [t.mapping(i) for i, t in enumerate(replayed)] if replayed else self.mappings
         mappers = [ActionMapper(m) for m in settings]
         obs, info = env.reset(seed=attempt_seed)
+        if self.on_reset is not None:
+            self.on_reset(env, obs, info)
         held = np.asarray(info.get("grasped", False)).reshape(-1)
         for mapper, holds in zip(mappers, held):
             if holds:    # the task starts with the object in this hand: the jaw command starts closed

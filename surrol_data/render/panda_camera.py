@@ -48,13 +48,13 @@ class PandaEndoscopeCamera:
     """Renders the endoscope's view of PyBullet ``client`` with Panda3D (see the module docstring)."""
 
     def __init__(self, client, size: tuple[int, int] = (128, 128), scene_scale: float = 1.0,
-                 shadows: bool = True, multisamples: int = 4):
+                 shadows: bool = True, multisamples: int = 4, shadow_map_size: int | None = None):
         width, height = _checked_size(size)
         self.client = client
         self.width, self.height = width, height
         self.scene_scale = float(scene_scale)
-        # The light's cone is wider than the view: about two shadow-map texels per image pixel across.
-        shadow_map = min(1024, max(256, 1 << (2 * max(width, height) - 1).bit_length()))
+        # The light's cone is wider than the view: about two shadow-map texels per image pixel across (by default).
+        shadow_map = shadow_map_size or min(1024, max(256, 1 << (2 * max(width, height) - 1).bit_length()))
         self.stage = EndoscopeStage(client, scene_scale, shadows=shadows, shadow_map_size=shadow_map)
         pipe = offscreen_pipe()
         self.engine = GraphicsEngine(pipe)

@@ -40,6 +40,10 @@ JPEG_QUALITY = 80
 # Views drawn inside an arm task's step besides the one after it: 3 per 0.2 s step, 15 per second, each of the state
 # the physics has reached, sent a third of a step apart (see SessionWorker._substep).
 MID_STEP_VIEWS = 2
+# The streamed Panda3D view: no multisampling and a 512² shadow map (the GUI's: 4× and 1024²). The JPEG's blocks soften
+# edges more than the missing anti-aliasing does, and on a software rasteriser (Mesa's llvmpipe) a 640×480 view then
+# costs ~70 instead of ~105 ms of CPU: enough for 15 a second on two cores beside the page's browser.
+STREAM_MULTISAMPLES, STREAM_SHADOW_MAP = 0, 512
 BROWSER_DEVICES = ("keyboard", "gamepad")
 
 
@@ -76,8 +80,10 @@ class SessionWorker:
         self._preview = None
         self.hud = Hud()
         self._step_start: float | None = None   # when the step in progress began (its first physics substep)
+        self._last_start: float | None = None   # when the one before began
         self._step_sim_s = 0.0                  # simulated seconds of it so far
-        self._mid_views = 0                     # views of it sent so far
+        self._mid_slots = 0                     # of its mid-step views, how many are sent or left out so far
+        self._behind = False                    # the step began late: its mid-step views are left out
 
     # ------------------------------------------------------------------ the pipe
     def send(self, *message) -> None:
@@ -166,7 +172,7 @@ class SessionWorker:
             result = collect_haptic(
                 self.task, SESSION_EPISODES, "(web console)", device=devices, operator_id=self.operator_id,
                 skill=self.skill, seed=self.next_seed, keep_failures=True, gui=False, progress=False,
-                command="surrol-data serve", key_tracker=tracker, on_step=self._on_step,
+                command="surrol-data serve", key_tracker=tracker, on_step=self._on_step, on_reset=self._on_reset,
                 env_kwargs={"render_mode": "rgb_array"}, max_attempts=SESSION_EPISODES, realtime=self.realtime,
                 timeout_needs_save=True, episode_sink=self._record)
         except RecordFailed as e:
@@ -185,23 +191,23 @@ class SessionWorker:
                                         "discarded": result.discarded, "redone": result.redone})
 
     # ------------------------------------------------------------------ per step
-    def _on_step(self, env, step: int, obs, info, flags) -> None:
-        if step == 1:
-            self.browser.start_episode()
-            self.hud.limit_steps = env.spec.max_episode_steps if env.spec is not None else None
-            self._watch_substeps(env)
-        self.hud.update(step, info, flags)
-        if self._mid_views and self.realtime:   # the step's last view a third of a step after its second
-            self._wait_until(self._step_start + self._mid_views * self.hud.period_s / (MID_STEP_VIEWS + 1))
-        self._step_start, self._step_sim_s, self._mid_views = None, 0.0, 0
-        self.send_frame(env)
-
-    def _watch_substeps(self, env) -> None:
-        """Draw views between an arm task's steps too (an ECM task's steps come 10 a second; it has no substep hook).
-        Installed at the session's first step, so its first step has only the view after it."""
+    def _on_reset(self, env, obs, info) -> None:
+        """An attempt starts: its input rate and latency counted anew, its time limit on the HUD, and views between
+        the steps of an arm task (an ECM task's steps come 10 a second; it has no substep hook)."""
+        self.browser.start_episode()
+        self.hud.limit_steps = env.spec.max_episode_steps if env.spec is not None else None
+        self._last_start = None
         u = env.unwrapped
         if hasattr(u, "substep_hook") and u.substep_hook is None:
             u.substep_hook = self._substep
+
+    def _on_step(self, env, step: int, obs, info, flags) -> None:
+        self.hud.update(step, info, flags)
+        if self._step_start is not None and self.realtime and not self._behind:
+            # the step's last view a third of a step after its second (late, at once: the next step is due)
+            self._wait_until(self._step_start + self._mid_slots * self.hud.period_s / (MID_STEP_VIEWS + 1))
+        self._step_start, self._step_sim_s, self._mid_slots = None, 0.0, 0
+        self.send_frame(env)
 
     def _substep(self, u) -> None:
         """After every physics substep of a step: once the physics has reached the next third of the step, that
@@ -209,16 +215,26 @@ class SessionWorker:
         step ahead of the physics: the first view of a step goes out as soon as the physics reaches it, the next a
         third of a step later, and the one after the step (``_on_step``) another third later, so the page gets a
         view every 67 ms, each a real state of the episode. Drawn without a forward-kinematics pass (which would
-        change the episode's next steps: views leave the episode as a replay of its actions gives it)."""
-        if self._step_start is None:
-            self._step_start = time.monotonic()
-        self._step_sim_s += u.client.getPhysicsEngineParameters()["fixedTimeStep"]
+        change the episode's next steps: views leave the episode as a replay of its actions gives it).
+
+        A machine that cannot draw them all in time keeps the robot's pace and leaves views out: a mid-step view
+        whose time has passed by half a third of a step, and both of a step that began that late (the views of the
+        one before took longer than the control period); the view after a step is always sent."""
         third = self.hud.period_s / (MID_STEP_VIEWS + 1)
-        if self._mid_views >= MID_STEP_VIEWS or self._step_sim_s < (self._mid_views + 1) * third - 1e-9:
+        if self._step_start is None:
+            now = self._step_start = time.monotonic()
+            self._behind = self.realtime and self._last_start is not None and \
+                now - self._last_start > self.hud.period_s + third / 2
+            self._last_start = now
+        self._step_sim_s += u.client.getPhysicsEngineParameters()["fixedTimeStep"]
+        if self._mid_slots >= MID_STEP_VIEWS or self._step_sim_s < (self._mid_slots + 1) * third - 1e-9:
             return
+        slot = self._step_start + self._mid_slots * third
+        self._mid_slots += 1
         if self.realtime:
-            self._wait_until(self._step_start + self._mid_views * third)
-        self._mid_views += 1
+            if self._behind or time.monotonic() > slot + third:
+                return
+            self._wait_until(slot)
         self.send_frame(u)
 
     @staticmethod
@@ -249,8 +265,15 @@ class SessionWorker:
             self._drop_camera()
             self._endoscope = EnvEndoscope(env)
             try:
-                self._camera = make_camera(client, self.size, scene_scale=self._endoscope.scene_scale,
-                                           renderer=self.renderer)
+                if self.renderer == "panda3d":
+                    from surrol_data.render.panda_camera import PandaEndoscopeCamera
+
+                    self._camera = PandaEndoscopeCamera(client, self.size, self._endoscope.scene_scale,
+                                                        multisamples=STREAM_MULTISAMPLES,
+                                                        shadow_map_size=STREAM_SHADOW_MAP)
+                else:
+                    self._camera = make_camera(client, self.size, scene_scale=self._endoscope.scene_scale,
+                                               renderer=self.renderer)
             except (ImportError, RuntimeError) as e:   # no Panda3D or no EGL here: TinyRenderer draws everywhere
                 if self.renderer == "tiny":
                     raise
