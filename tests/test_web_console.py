@@ -288,11 +288,19 @@ def hold(page, key: str, steps: int) -> None:
     page.key(key, True)
     pressed = page.js("window.consoleStats.sent")
     page.wait_for(f"window.consoleStats.lastAck >= {pressed}")   # a frame stepped with the key held
+    end_of_step(page)                                             # that step's end
     first = page.js("window.consoleStats.hud.step")
     page.wait_for(f"window.consoleStats.hud.step >= {first + steps - 1}")
     page.key(key, False)
     released = page.js("window.consoleStats.sent")
-    page.wait_for(f"window.consoleStats.lastAck >= {released}")   # the view after the release
+    page.wait_for(f"window.consoleStats.lastAck >= {released}")   # a view stepped after the release
+    end_of_step(page)
+
+
+def end_of_step(page) -> None:
+    """Wait for the view at the end of the step in progress (views inside a step carry the last finished step's HUD)."""
+    step = page.js("window.consoleStats.hud.step")
+    page.wait_for(f"window.consoleStats.hud.step > {step}")
 
 
 def hold_pad(page, axis: int, value: float, steps: int) -> None:
@@ -302,8 +310,10 @@ def hold_pad(page, axis: int, value: float, steps: int) -> None:
         page.js(f"window.fakePad.axes[{axis}] = {value if held else 0}")   # the page polls it every frame
         page.wait_for(f"window.consoleStats.sent > {before} && window.consoleStats.lastAck >= window.consoleStats.sent")
         if held:
+            end_of_step(page)
             first = page.js("window.consoleStats.hud.step")
             page.wait_for(f"window.consoleStats.hud.step >= {first + steps - 1}")
+    end_of_step(page)
 
 
 def play(page) -> None:

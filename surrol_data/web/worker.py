@@ -232,7 +232,7 @@ class SessionWorker:
         slot = self._step_start + self._mid_slots * third
         self._mid_slots += 1
         if self.realtime:
-            if self._behind or time.monotonic() > slot + third:
+            if self._behind or time.monotonic() > slot + third / 2:
                 return
             self._wait_until(slot)
         self.send_frame(u)
