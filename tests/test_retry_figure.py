@@ -120,3 +120,14 @@ def test_the_frames_show_the_disabled_close_the_reopened_jaw_the_retry_and_the_s
     # states after actions 9, 11 and 14 (1-based: 10, 12, 15), then evenly to the first success (state 31)
     assert _frame_steps(traj, disabled_from=9) == [10, 12, 15, 23, 31]
     assert _frame_steps(traj, disabled_from=-1) == [0, 8, 16, 23, 31]   # the probe never fired: evenly to success
+
+
+def test_the_reports_name_each_tasks_object_and_keep_needlepicks_measurements_to_it():
+    from surrol_data.evaluation.recovery_report import (ATTEMPT_DEFINITION, attempt_definition, object_name,
+                                                        probe_definition)
+
+    assert attempt_definition("NeedlePick") == ATTEMPT_DEFINITION and "26 mm" in ATTEMPT_DEFINITION
+    peg = attempt_definition("PegTransfer")
+    assert "needle" not in peg and "26 mm" not in peg and "the block's grasp point" in peg and "It failed" in peg
+    assert "needle" not in probe_definition("GauzeRetrieve") and "near the gauze" in probe_definition("GauzeRetrieve")
+    assert object_name("NeedleRings") == "needle" and object_name("PickAndPlace") == "object"

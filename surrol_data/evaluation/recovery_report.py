@@ -149,3 +149,26 @@ PROBE_DEFINITION = (
     "the jaw opens; every later close grips as usual. Of the episodes with a close so disabled: how many "
     "retried (a later such close, or one that held the needle), how many retried and the episode ended in success, "
     "and how many stalled.")
+# What a task's grasp holds, as its report names it.
+OBJECT_NAMES = {"PegTransfer": "block", "GauzeRetrieve": "gauze"}
+
+
+def object_name(task: str) -> str:
+    return OBJECT_NAMES.get(task, "needle" if "Needle" in task else "object")
+
+
+def attempt_definition(task: str = "NeedlePick") -> str:
+    """The attempts table's definition: NeedlePick's with what was measured of its policies' grasps; another task's
+    with its object, without NeedlePick's measurements."""
+    if task == "NeedlePick":
+        return ATTEMPT_DEFINITION
+    o = object_name(task)
+    rest = ATTEMPT_DEFINITION[ATTEMPT_DEFINITION.index("It failed when"):].replace("needle", o)
+    return ("An attempt is a close of the jaw (command < 0) of at least two steps, with the measured jaw closing, that "
+            f"starts with the tool tip within 5 mm of the {o}'s grasp point, or any close that held the {o}; jaw "
+            f"flicker away from the {o} is no attempt (nor is a miss away from its grasp point, or a one-step close: "
+            "the probe below has neither blind spot). " + rest)
+
+
+def probe_definition(task: str = "NeedlePick") -> str:
+    return PROBE_DEFINITION.replace("needle", object_name(task))

@@ -35,8 +35,8 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 
 from surrol_data.datasets.metrics import Estimate, estimate
-from surrol_data.evaluation.recovery_report import (ATTEMPT_COLUMNS, ATTEMPT_DEFINITION, PROBE_COLUMNS,
-                                                     PROBE_DEFINITION, REPORT_FILE, attempt_rows, epoch_episodes,
+from surrol_data.evaluation.recovery_report import (ATTEMPT_COLUMNS, PROBE_COLUMNS, REPORT_FILE, attempt_definition,
+                                                     attempt_rows, epoch_episodes, probe_definition,
                                                      probe_rows)
 from surrol_data.evaluation.report import Column, metrics_table_markdown
 
@@ -277,12 +277,13 @@ def _run_list(missing: Mapping[str, Sequence[str]], n_runs: int, n_epochs: int) 
 def recovery_sections(runs: Sequence[Run], epochs: Sequence[int]) -> list[str]:
     """The attempts-and-recovery and the induced-failure sections, each saying which runs it lacks and why."""
     groups = by_source(runs)
+    task = runs[0].task if runs else "NeedlePick"
     out = []
     for title, build, columns, definition, lack in (
-            ("Attempts and recovery", attempt_rows, ATTEMPT_COLUMNS, ATTEMPT_DEFINITION,
+            ("Attempts and recovery", attempt_rows, ATTEMPT_COLUMNS, attempt_definition(task),
              "no per-episode attempt record at that epoch (their evaluation files predate the attempt measure, or "
              "the task has no grasp record)"),
-            ("Induced failure: the first attempt made to fail", probe_rows, PROBE_COLUMNS, PROBE_DEFINITION,
+            ("Induced failure: the first attempt made to fail", probe_rows, PROBE_COLUMNS, probe_definition(task),
              f"no probe episodes ({REPORT_FILE}, written by the study after training since the probe was added)")):
         rows, missing = [], {}
         for epoch in epochs:

@@ -23,6 +23,8 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
+from surrol_data.evaluation.recovery_report import object_name
+
 FIGURE_FILE = "retry_frames.png"
 FRAMES = 5
 PROBE_OUTCOMES = ("retried_succeeded", "retried_failed", "stalled")
@@ -215,8 +217,8 @@ def write_retry_figure(runs: Sequence, out: str | Path, epoch: int,
         axes[r][0].text(-0.06, 0.5, label, transform=axes[r][0].transAxes, ha="right", va="center", fontsize=9)
         lines.append(f"{c.source}-trained: `{c.outcome}` ({c.share} probed episodes of its runs at epoch {epoch}); "
                      f"shown: {c.run.parent.name}/{c.run.name}, probe seed {c.seed}")
-    fig.suptitle(f"Epoch {epoch}, the first close near the needle made to fail: each source's most common outcome",
-                 fontsize=10)
+    fig.suptitle(f"Epoch {epoch}, the first close near the {object_name(runs[0].task)} made to fail: each source's most "
+                 "common outcome", fontsize=10)
     fig.tight_layout(rect=(0.08, 0, 1, 0.95))
     path = Path(out) / FIGURE_FILE
     fig.savefig(path, dpi=110)
@@ -236,7 +238,7 @@ def retry_frames_section(runs: Sequence, out: Path, epoch: int) -> list[str]:
         return []
     path, lines = drawn
     return [head, "Each source's policy on the probe episodes (the grip disabled during its first close near the "
-            "needle), the episode chosen by the measure of the induced-failure table: the source's most common "
+            f"{object_name(runs[0].task)}), the episode chosen by the measure of the induced-failure table: the source's most common "
             "outcome (retried and succeeded, retried and failed, stalled), its first episode "
             "(`surrol_data/study/retry_figure.py`).\n", *(f"* {line}" for line in lines),
             f"\n![frames after a failed first grasp]({path.name})\n"]
