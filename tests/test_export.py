@@ -138,3 +138,35 @@ def test_card_keeps_only_relative_paths():
         "surrol-data collect --out NP_script --episodes 5"
     assert relative_command("surrol-data merge --out=/abs/merged a b") == "surrol-data merge --out=merged a b"
     assert relative_command("unbalanced 'quote") == "unbalanced 'quote"
+
+
+def test_a_write_that_fails_inside_hdf5_is_the_disks_error_and_leaves_no_file(dataset, tmp_path, monkeypatch):
+    """A disk that fills while HDF5 writes the file out on closing it: the export raises the disk's own error (the
+    CLI's one-line message) and removes its partial file. (Where HDF5 turns such a failure into a RuntimeError naming
+    no cause, "driver write request failed", the export raises the disk's error instead: the fault sweep's export
+    trials, benchmarks/crash_safety.py --faults --fault-paths export.)"""
+    import errno
+
+    import surrol_data.datasets.export_robomimic as export
+
+    import h5py
+
+    closing = {"now": False}
+    real_write, real_close = export._WritesThrough.write, h5py.File.close
+
+    def write(self, data):   # the disk fills as HDF5 writes out what it held back, on closing the file
+        if closing["now"]:
+            return self._kept(lambda _: (_ for _ in ()).throw(OSError(errno.ENOSPC, "No space left on device")), data)
+        return real_write(self, data)
+
+    def close(self):
+        closing["now"] = True
+        return real_close(self)
+
+    monkeypatch.setattr(export._WritesThrough, "write", write)
+    monkeypatch.setattr(h5py.File, "close", close)
+    out = tmp_path / "full.hdf5"
+    with pytest.raises(OSError) as raised:
+        export.export_robomimic(dataset[0], out, progress=False)
+    assert raised.value.errno == errno.ENOSPC
+    assert not out.exists() and not out.with_name(out.name + ".partial").exists()

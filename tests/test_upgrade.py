@@ -157,3 +157,41 @@ def test_upgrade_seals_every_episode_as_the_writer_does(camera):
     pq.write_table(table, path)
     problems = validate_dataset(camera, check_reward=False, check_lerobot=False)
     assert any(p.check == "integrity" and "episode" in p.message for p in problems), problems
+
+
+def test_a_swap_that_fails_halfway_puts_the_original_back(camera, monkeypatch):
+    """Where the system cannot swap the two folders in one step, the upgrade renames twice; the second rename failing
+    (a full or failing disk) must leave the original under its own name, as it was."""
+    import errno
+    import os
+
+    import surrol_data.datasets.upgrade as upgrade
+
+    def files():   # (the dataset's lock file stays, as after every command that writes it)
+        return sorted(p.relative_to(camera).as_posix() for p in camera.rglob("*") if p.name != ".surrol_data.lock")
+
+    before = files()
+    monkeypatch.setattr(upgrade, "_exchange", lambda a, b: False)
+    real = os.replace
+
+    def replace(src, dst):
+        if Path(src).name.startswith(".camera.upgrade-"):
+            raise OSError(errno.EIO, "Input/output error", str(dst))
+        return real(src, dst)
+
+    monkeypatch.setattr(upgrade.os, "replace", replace)
+    with pytest.raises(OSError):
+        upgrade.upgrade_dataset(camera)
+    assert files() == before
+    assert not list(camera.parent.glob(".camera.upgrade-*")) and not (camera.parent / "camera.schema1").exists()
+
+
+def test_the_upgraded_copy_is_swapped_in_in_one_step_where_the_system_can(camera):
+    import surrol_data.datasets.upgrade as upgrade
+
+    a, b = camera.parent / "a", camera.parent / "b"
+    a.mkdir(), b.mkdir()
+    (a / "x").write_text("a"), (b / "y").write_text("b")
+    if not upgrade._exchange(a, b):
+        pytest.skip("this file system cannot exchange two paths in one step (renameat2 RENAME_EXCHANGE)")
+    assert (a / "y").read_text() == "b" and (b / "x").read_text() == "a"

@@ -82,8 +82,9 @@ def export_robomimic(src: str | Path, out: str | Path, *, where: str | None = No
     # HDF5 is given a Python file to write through: its own (C) writes meet a full disk with errors it can only print
     # ("Exception ignored in ObjectID.__dealloc__") and then a segmentation fault; through Python the failed write
     # is the OSError it is, and the half-written file is removed
+    fh = None
     try:
-        with open(tmp, "w+b") as fh, h5py.File(fh, "w") as f:
+        with open(tmp, "w+b") as raw, h5py.File(fh := _WritesThrough(raw), "w") as f:
             data = f.create_group("data")
             for i, ep in enumerate(tqdm(episodes, desc=f"export robomimic {out.name}", unit="ep",
                                         disable=not progress)):
@@ -134,8 +135,37 @@ def export_robomimic(src: str | Path, out: str | Path, *, where: str | None = No
             group = f.create_group("mask")
             for key, names in sorted(masks.items()):
                 group.create_dataset(key, data=np.array(names, dtype="S"))
-    except BaseException:
+    except BaseException as e:
         tmp.unlink(missing_ok=True)
+        if fh is not None and fh.error is not None and not isinstance(e, OSError):
+            raise fh.error from e   # HDF5's "driver write request failed": the disk's error is the cause
         raise
     tmp.replace(out)  # a half-written export never carries the final name
     return out
+
+
+class _WritesThrough:
+    """The file HDF5 writes through, keeping the first error of its writes: HDF5 reports a failed write as a
+    RuntimeError ("driver write request failed", often only when the file is closed) that names no cause."""
+
+    def __init__(self, raw):
+        self.raw, self.error = raw, None
+
+    def __getattr__(self, name):
+        return getattr(self.raw, name)
+
+    def _kept(self, call, *args):
+        try:
+            return call(*args)
+        except OSError as e:
+            self.error = self.error or e
+            raise
+
+    def write(self, data):
+        return self._kept(self.raw.write, data)
+
+    def flush(self):
+        return self._kept(self.raw.flush)
+
+    def truncate(self, *size):
+        return self._kept(self.raw.truncate, *size)

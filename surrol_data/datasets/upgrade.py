@@ -18,6 +18,8 @@ beside the original and swapped in only once it validates, so an interrupted upg
 
 from __future__ import annotations
 
+import ctypes
+import errno
 import glob
 import json
 import os
@@ -135,15 +137,52 @@ def upgrade_dataset(root: str | Path, keep_backup: bool = False) -> UpgradeRepor
         if backup.exists():
             raise DatasetError(f"{backup} already exists (an earlier upgrade's backup): move it away and run again; "
                                f"the upgraded copy is at {work}")
-        os.replace(root, backup)
-        os.replace(work, root)
+        original = _swap_in(work, root, backup)
     finally:
         lock.release()
     if keep_backup:
+        if original != backup:
+            os.replace(original, backup)
         report.backup = backup
     else:
-        shutil.rmtree(backup)
+        shutil.rmtree(original, ignore_errors=True)
     return report
+
+
+def _swap_in(work: Path, root: Path, backup: Path) -> Path:
+    """Put the upgraded ``work`` at ``root``; returns where the original is now. In one step where the system can
+    (both moved or neither, whatever fails); else in two renames, the original put back if the second fails."""
+    if _exchange(work, root):
+        return work
+    os.replace(root, backup)
+    try:
+        os.replace(work, root)
+    except BaseException as e:
+        try:
+            os.replace(backup, root)
+        except OSError:
+            raise DatasetError(f"the upgraded copy could not be put in place ({e}), nor the original back: the original "
+                               f"is kept, whole, at {backup}; move it back (`mv {backup} {root}`) once the disk takes "
+                               f"changes again (the upgraded copy is at {work})") from e
+        shutil.rmtree(work, ignore_errors=True)
+        raise
+    return backup
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap two paths atomically (Linux renameat2 with RENAME_EXCHANGE); False, having changed nothing, where the
+    system or its file system cannot."""
+    try:
+        renameat2 = ctypes.CDLL(None, use_errno=True).renameat2
+    except (OSError, AttributeError):
+        return False
+    at_fdcwd, rename_exchange = -100, 2
+    if renameat2(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0:
+        return True
+    code = ctypes.get_errno()
+    if code in (errno.ENOSYS, errno.EINVAL, errno.ENOTSUP, errno.EXDEV):
+        return False
+    raise OSError(code, os.strerror(code), str(b))
 
 
 _WORK_PREFIX = ".{name}.upgrade-"
