@@ -125,10 +125,10 @@ def upgrade_dataset(root: str | Path, keep_backup: bool = False) -> UpgradeRepor
         work = root.parent / f"{_WORK_PREFIX.format(name=root.name)}{os.getpid()}"
         try:
             _build(root, work, info, report)
+            problems = _validate(work)   # (a disk that fails while LeRobot reads the copy raises here)
         except BaseException:
             shutil.rmtree(work, ignore_errors=True)  # half a copy helps nobody; the original is untouched
             raise
-        problems = _validate(work)
         if problems:
             listed = "\n  ".join(problems)
             raise DatasetError(f"the upgraded copy of {given} does not validate, so the original is left as it was "

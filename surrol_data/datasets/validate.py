@@ -103,13 +103,19 @@ def validate_dataset(root: str | Path, *, check_reward: bool = True, check_lerob
     provenance and its seals, counts (the data files' row counts from their footers), tasks and sidecar — without
     reading a frame (the ``frames``, ``episodes``, ``statistics`` and ``videos`` stages and the device traces are
     left out). ``progress`` is called with the name of each stage of :data:`STAGES` as it starts (for a progress
-    bar). Never raises on a damaged dataset: a check that fails unexpectedly is itself reported as a problem.
+    bar). Never raises on a damaged dataset: a check that fails unexpectedly is itself reported as a problem. A disk
+    that refuses a write of the checks' own (LeRobot's cache, under ~/.cache) raises its OSError: that says nothing
+    of the dataset.
     """
     root = Path(root)
     try:
         return _validate(root, check_reward and frames, check_lerobot and frames, check_videos and frames, frames,
                          progress or (lambda stage: None))
     except Exception as e:  # noqa: BLE001 - the promise is a list of problems, never a traceback
+        from surrol_data.datasets.write_failure import disk_error
+
+        if disk_error(e) is not None:   # the disk refused a write of the checks' own (LeRobot's cache): no finding
+            raise disk_error(e) from e
         return [Problem("internal", str(root), f"validation stopped on {type(e).__name__}: {e}; the dataset is "
                                                f"damaged in a way no check names yet: try `surrol-data repair "
                                                f"{root}`")]
@@ -939,6 +945,11 @@ def _check_lerobot(root: Path, info: dict) -> list[Problem]:
         if len(ds):
             ds[0]
             ds[len(ds) - 1]
-    except Exception as e:  # whatever lerobot raises is the finding
+    except Exception as e:  # whatever lerobot raises is the finding, but for the disk failing as it writes its cache
+        from surrol_data.datasets.write_failure import disk_error
+
+        refused = disk_error(e)
+        if refused is not None:   # (the HF datasets cache under ~/.cache: the dataset itself may well be whole)
+            raise refused from e
         return [Problem("lerobot", str(root), f"LeRobotDataset cannot read it: {type(e).__name__}: {e}")]
     return []
