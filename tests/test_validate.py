@@ -66,6 +66,25 @@ def test_clean_dataset_passes_every_check(clean):
     assert validate_dataset(clean) == []  # reward check with the real env, LeRobotDataset included
 
 
+def test_a_disk_that_refuses_lerobots_cache_is_the_disks_error_not_a_finding(clean, monkeypatch):
+    """LeRobot writes a cache under ~/.cache as it loads a dataset; that disk being full says nothing of the dataset:
+    validate raises the disk's error (the CLI's one-line message) instead of calling the dataset unreadable."""
+    import errno
+
+    import surrol_data.datasets.writer as writer
+
+    def full(*args, **kwargs):
+        try:
+            raise OSError(errno.ENOSPC, "No space left on device", "/root/.cache/huggingface/datasets/x.lock")
+        except OSError as e:   # as HF datasets wraps it: an OSError without errno, the disk's one as its cause
+            raise OSError("Cannot find data file. Original error:\n" + str(e)) from e
+
+    monkeypatch.setattr(writer, "_lerobot_dataset_class", lambda: full)
+    with pytest.raises(OSError) as raised:
+        validate_dataset(clean, check_reward=False)
+    assert raised.value.errno == errno.ENOSPC
+
+
 def test_missing_provenance_column(broken):
     path = _episodes_file(broken)
     table = pq.read_table(path)
