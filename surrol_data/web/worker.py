@@ -7,8 +7,9 @@ and rendering never stall another's) and talks to it over a pipe:
   ``("press", key)`` a session key (play / redo / discard / save / end as on the GUI), ``("task", name)``,
   ``("play", device)``, ``("quit",)``; and the writer's answers ``("recorded", index)`` / ``("record_failed", why)``;
 * worker → server: ``("ready", facts)``, ``("frame", header, jpeg)`` after every env step and, in an arm task, at
-  a third and two thirds of it (:data:`MID_STEP_VIEWS`), and one preview per task, ``("status", text)``, ``("episode", record)`` for every kept episode (it waits for the writer's answer:
-  the session goes on only once the episode is durable), ``("session_ended", summary)``.
+  a third and two thirds of it (:data:`MID_STEP_VIEWS`), and one preview per task, ``("status", text)``,
+  ``("episode", record)`` for every kept episode (it waits for the writer's answer: the session goes on only once
+  the episode is durable), ``("session_ended", summary)``.
 
 A session is :func:`surrol_data.collect.haptic_source.collect_haptic` with the page's devices
 (:mod:`surrol_data.collect.devices.browser`), the session keys from the page, and an episode sink that hands each
