@@ -103,10 +103,10 @@ def test_serve_refuses_bad_arguments_in_one_line():
 
 
 def test_a_session_streams_three_views_a_step_each_a_state_the_episode_passes_through_and_leaves_it_as_it_is():
-    """One browser's process, driven over its pipe as the server drives it (unpaced: the steps back to back, so that
-    no view is left out on a busy machine): while the operator holds a key, every arm step streams three views, each
-    the image of a physics substep's state, in order, the last the step's end; and the saved episode is what its
-    actions give without any view drawn."""
+    """One browser's process, driven over its pipe as the server drives it, paced as a person operates: while the
+    operator holds a key, every arm step streams its end view and (where the machine draws them in time) the views a
+    third and two thirds into it, each the image of that physics substep's state, in order; and the saved episode is
+    what its actions give without any view drawn."""
     import io
     import multiprocessing
 
@@ -122,7 +122,7 @@ def test_a_session_streams_three_views_a_step_each_a_state_the_episode_passes_th
     size, seed = (96, 72), 5
     ctx = multiprocessing.get_context("spawn")
     ours, theirs = ctx.Pipe()
-    worker = ctx.Process(target=worker_main, args=(theirs, "NeedlePick", "op.1", "novice", seed, size, "panda3d", False),
+    worker = ctx.Process(target=worker_main, args=(theirs, "NeedlePick", "op.1", "novice", seed, size, "panda3d", True),
                          daemon=True)
     worker.start()
     try:
@@ -138,15 +138,16 @@ def test_a_session_streams_three_views_a_step_each_a_state_the_episode_passes_th
         ours.send(("play", "keyboard"))
         receive("status")
         ours.send(("input", {"seq": 1, "keys": ["a", "s"]}))   # left and toward the operator: the tool moves
-        views = []
+        views = []   # (the HUD's step: the last finished one, the view)
         while len(views) < 3 * 7:
-            views.append(receive("frame")[2])
+            _, header, view = receive("frame")
+            views.append((header["hud"]["step"], view))
         ours.send(("press", "enter"))
         while True:   # the views streamed before the saved episode are all of it
             assert ours.poll(120)
             message = ours.recv()
             if message[0] == "frame":
-                views.append(message[2])
+                views.append((message[1]["hud"]["step"], message[2]))
             elif message[0] == "episode":
                 record = message[1]
                 break
@@ -157,7 +158,7 @@ def test_a_session_streams_three_views_a_step_each_a_state_the_episode_passes_th
         if worker.is_alive():
             worker.kill()
     traj = record["traj"]
-    assert record["provenance"]["seed"] == seed and len(views) == 3 * len(traj.action)
+    assert record["provenance"]["seed"] == seed
 
     # The episode again, from its actions, with no view drawn: the same, to the bit.
     env = gym.make(env_id("NeedlePick"), render_mode="rgb_array")
@@ -167,7 +168,8 @@ def test_a_session_streams_three_views_a_step_each_a_state_the_episode_passes_th
         assert np.array_equal(obs["observation"], observation)
 
     # And once more, drawing every physics substep's state as the worker draws it (without a forward-kinematics pass):
-    # each streamed view is one of them, in order, three a step (at a third, two thirds and the end of the step).
+    # each streamed view is one of them, in order: the step's end view, and the views sent while it ran (carrying the
+    # step before's HUD) those a third and two thirds into it.
     env.reset(seed=seed)
     endoscope = EnvEndoscope(env)
     camera = PandaEndoscopeCamera(env.unwrapped.client, size, endoscope.scene_scale, multisamples=STREAM_MULTISAMPLES,
@@ -181,16 +183,24 @@ def test_a_session_streams_three_views_a_step_each_a_state_the_episode_passes_th
 
     substeps: list[bytes] = []
     env.unwrapped.substep_hook = lambda u: substeps.append(jpeg())
-    at, moving = 0, 0
-    for k, action in enumerate(traj.action):
+    at, whole, moving = 0, 0, 0
+    for step, action in enumerate(traj.action, start=1):
         substeps.clear()
         env.step(action)
         n = len(substeps)
-        shown = [n // 3, 2 * n // 3, n]   # the substeps (1-based) the step's views show
-        assert views[at:at + len(shown)] == [substeps[i - 1] for i in shown], (k, shown)
-        moving += len(set(views[at:at + len(shown)])) == len(shown) > 1   # the tool moved between them
-        at += len(shown)
-    assert at == len(views) and moving >= len(traj.action) // 2
+        mids = []
+        while views[at][0] == step - 1:   # sent while this step ran
+            mids.append(views[at][1])
+            at += 1
+        assert views[at][0] == step and views[at][1] == substeps[-1], step   # its end view
+        thirds = [substeps[n // 3 - 1], substeps[2 * n // 3 - 1]]
+        assert all(m in thirds for m in mids) and [thirds.index(m) for m in mids] == sorted(
+            thirds.index(m) for m in mids), step
+        shown = [*mids, views[at][1]]
+        at += 1
+        whole += len(mids) == 2
+        moving += len(mids) == 2 and len(set(shown)) == 3   # the tool moved between them
+    assert at == len(views) and whole >= 1 and moving >= 1, (whole, moving)
     camera.close()
     env.close()
 
