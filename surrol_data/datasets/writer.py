@@ -241,8 +241,8 @@ class DatasetWriter:
             from surrol_data.datasets.readonly_view import is_writable
 
             if not is_writable(self.root):   # before the repair an unfinished one needs, which could not be kept
-                raise DatasetError(f"{self.root} cannot be written here (a read-only disk or folder): to add episodes "
-                                   "to it, copy it to a writable folder and append there")
+                raise DatasetError(f"{self.root} cannot be written here (a read-only disk or folder); it is "
+                                   "unchanged: to add episodes to it, copy it to a writable folder and append there")
             if (self.root / "meta").is_dir():
                 # A recording killed before it created its LeRobot dataset left no info.json: the repair builds it.
                 self._before_append()
