@@ -114,8 +114,9 @@ def validate_dataset(root: str | Path, *, check_reward: bool = True, check_lerob
     except Exception as e:  # noqa: BLE001 - the promise is a list of problems, never a traceback
         from surrol_data.datasets.write_failure import disk_error
 
-        if disk_error(e) is not None:   # the disk refused a write of the checks' own (LeRobot's cache): no finding
-            raise disk_error(e) from e
+        refused = disk_error(e)
+        if refused is not None:   # the disk refused a write of the checks' own (LeRobot's cache): no finding
+            raise refused from e
         return [Problem("internal", str(root), f"validation stopped on {type(e).__name__}: {e}; the dataset is "
                                                f"damaged in a way no check names yet: try `surrol-data repair "
                                                f"{root}`")]

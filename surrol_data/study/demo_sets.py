@@ -198,12 +198,10 @@ def demo_quality(sets: dict[str, Path], task: str = PAPER_TASK) -> list[dict]:
                      "sparc": mean(ok, "sparc"), "log_dimensionless_jerk": mean(ok, "log_dimensionless_jerk"),
                      "idle_time_s": mean(ep, "idle_time_s"), "failed_grasps": mean(ep, "failed_grasps"),
                      "jaw_closures": mean(ep, "jaw_closures"), "clutch_uses": mean(ep, "clutch_uses")})
+    sources_mean = (sum(r["steps_to_success"] for r in rows) / len(rows),
+                    sum(r["path_length_cm"] for r in rows) / len(rows))
     for row in rows:
-        if task == PAPER_TASK:
-            row["paper_steps"], row["paper_path"] = PAPER_DEMOS[row["source"]]
-        else:
-            row["paper_steps"] = sum(r["steps_to_success"] for r in rows) / len(rows)
-            row["paper_path"] = sum(r["path_length_cm"] for r in rows) / len(rows)
+        row["paper_steps"], row["paper_path"] = PAPER_DEMOS[row["source"]] if task == PAPER_TASK else sources_mean
         within = (abs(row["steps_to_success"] / row["paper_steps"] - 1) <= MATCH_TOLERANCE
                   and abs(row["path_length_cm"] / row["paper_path"] - 1) <= MATCH_TOLERANCE)
         row["matched"] = "yes" if within else "no"
