@@ -54,4 +54,4 @@ def test_a_task_without_the_papers_demo_figures_matches_its_sources_to_one_anoth
     other = demo_quality(sets, "PegTransfer")
     assert [(r["paper_steps"], r["paper_path"], r["matched"]) for r in other] == [(125.0, 12.0, "yes")] * 3
     text = demo_quality_markdown(other, True, "PegTransfer")
-    assert "matched to one another" in text and "Sources' mean steps" in text and "near the object" in text
+    assert "matched to one another" in text and "Sources' mean steps" in text and "near the block" in text

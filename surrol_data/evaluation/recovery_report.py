@@ -35,6 +35,11 @@ def _read(path: Path):
     return pd.read_csv(path) if path.is_file() else None
 
 
+def flags(values):
+    """A True/False column of an episodes CSV as booleans (pandas reads it as bool, or as text where blanks mix in)."""
+    return values.astype(str).str.lower() == "true"
+
+
 def epoch_episodes(run_path: Path, epoch: int, kind: str = "eval"):
     """(episodes, where) of a run at ``epoch``: its report evaluation's rows of ``kind`` (``eval`` or ``probe``)
     where it has them (where = ``report``), else for ``eval`` the per-epoch evaluation's rows (``per-epoch``);
@@ -113,9 +118,9 @@ def probe_rows(groups: Mapping[str, Sequence], epoch: int) -> tuple[list[dict], 
     pooled, missing = _pooled(groups, epoch, "probe", "probed")
     rows = []
     for source, (ep, seeds, _) in pooled.items():
-        probed = ep[ep["probed"].astype(str).str.lower() == "true"]
+        probed = ep[flags(ep["probed"])]
         retried = probed["probe_retries"].astype(int) > 0
-        success = probed["final_success"].astype(str).str.lower() == "true"
+        success = flags(probed["final_success"])
         rows.append({"source": source, "epoch": str(epoch), "seeds": seeds, "episodes": len(ep),
                      "probed": len(probed), "retried": rate_cell(retried), "recovered": rate_cell(retried & success),
                      "stall": rate_cell(~retried)})

@@ -36,7 +36,7 @@ import numpy as np
 
 from surrol_data.datasets.metrics import Estimate, estimate
 from surrol_data.evaluation.recovery_report import (ATTEMPT_COLUMNS, PROBE_COLUMNS, REPORT_FILE, attempt_definition,
-                                                     attempt_rows, epoch_episodes, probe_definition,
+                                                     attempt_rows, epoch_episodes, flags, probe_definition,
                                                      probe_rows)
 from surrol_data.evaluation.report import Column, metrics_table_markdown
 
@@ -159,11 +159,11 @@ def epoch_scores(run: Run, epoch: int) -> tuple[dict, str | None]:
     horizon = float((run.config.get("schedule") or {}).get("max_episode_steps", math.nan))
     scores = {}
     if episodes is not None:
-        success = episodes["success"].astype(str).str.lower() == "true"
+        success = flags(episodes["success"])
         steps = episodes["steps_to_success"].astype(float)
         scores["steps_to_complete_horizon"] = float(np.where(success, steps, horizon).mean())
         if where == "report":
-            final = episodes["final_success"].astype(str).str.lower() == "true"
+            final = flags(episodes["final_success"])
             ok = episodes[success]
             scores.update({"success_rate": float(final.mean()),
                            "steps_to_complete": float(steps[success].mean()) if len(ok) else math.nan,
@@ -250,8 +250,8 @@ def recovery_rows(runs: Sequence[Run], epoch: int) -> list[dict]:
         if not frames:
             continue
         ep = pd.concat(frames)
-        first_failed = ep["first_grasp_failed"].astype(str).str.lower() == "true"
-        recovered = ep["recovered"].astype(str).str.lower() == "true"
+        first_failed = flags(ep["first_grasp_failed"])
+        recovered = flags(ep["recovered"])
         n_failed = int(first_failed.sum())
         rows.append({"source": source, "seeds": len(frames), "episodes": len(ep),
                      "closed_jaw": int(ep["first_grasp_failed"].notna().sum()), "first_failed": n_failed,

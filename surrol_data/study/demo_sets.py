@@ -13,6 +13,7 @@ import json
 import math
 from pathlib import Path
 
+from surrol_data.evaluation.recovery_report import object_name
 from surrol_data.evaluation.report import Column, metrics_table_markdown
 from surrol_data.study.spec import SKILL_OF_SOURCE, StudySpec, operator_ids
 
@@ -264,7 +265,7 @@ def demo_quality_markdown(rows: list[dict], matched: bool, task: str = PAPER_TAS
             "smoother) from the device trace where there is one (the simulated operators'), from the tool tip for "
             "the script; idle, failed grasps, failed attempts, retries, jaw closures and clutch uses: means per "
             "episode. "
-            f"A failed attempt is a grasp attempt near the {'needle' if 'Needle' in task else 'object'} that never held it or lost it before a 5 mm lift, a "
+            f"A failed attempt is a grasp attempt near the {object_name(task)} that never held it or lost it before a 5 mm lift, a "
             "retry an attempt after a failed one (datasets/attempts.py); successful demos may contain both. The human "
             "demos come from simulated operators (a motor-control model), not from people.\n\n"
             + metrics_table_markdown(rows, demo_columns(task))

@@ -23,7 +23,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
-from surrol_data.evaluation.recovery_report import object_name
+from surrol_data.evaluation.recovery_report import flags, object_name
 
 FIGURE_FILE = "retry_frames.png"
 FRAMES = 5
@@ -35,10 +35,6 @@ def probe_outcome(retries: int, final_success: bool) -> str:
     if retries <= 0:
         return "stalled"
     return "retried_succeeded" if final_success else "retried_failed"
-
-
-def _truthy(values):
-    return values.astype(str).str.lower() == "true"
 
 
 @dataclass(frozen=True)
@@ -66,10 +62,10 @@ def choose_episodes(runs, epoch: int) -> list[ChosenEpisode]:
             if not path.is_file():
                 continue
             rows = pd.read_csv(path)
-            rows = rows[(rows["epoch"] == epoch) & (rows["kind"] == "probe") & _truthy(rows["probed"])].copy()
+            rows = rows[(rows["epoch"] == epoch) & (rows["kind"] == "probe") & flags(rows["probed"])].copy()
             if len(rows):
                 rows["outcome"] = [probe_outcome(int(r), bool(s))
-                                   for r, s in zip(rows["probe_retries"], _truthy(rows["final_success"]))]
+                                   for r, s in zip(rows["probe_retries"], flags(rows["final_success"]))]
                 frames.append((run, rows.sort_values("seed")))
         if not frames:
             continue
