@@ -265,9 +265,9 @@ def demo_quality_markdown(rows: list[dict], matched: bool, task: str = PAPER_TAS
             "smoother) from the device trace where there is one (the simulated operators'), from the tool tip for "
             "the script; idle, failed grasps, failed attempts, retries, jaw closures and clutch uses: means per "
             "episode. "
-            f"A failed attempt is a grasp attempt near the {object_name(task)} that never held it or lost it before a 5 mm lift, a "
-            "retry an attempt after a failed one (datasets/attempts.py); successful demos may contain both. The human "
-            "demos come from simulated operators (a motor-control model), not from people.\n\n"
+            f"A failed attempt is a grasp attempt near the {object_name(task)} that never held it or lost it before "
+            "a 5 mm lift, a retry an attempt after a failed one (datasets/attempts.py); successful demos may contain "
+            "both. The human demos come from simulated operators (a motor-control model), not from people.\n\n"
             + metrics_table_markdown(rows, demo_columns(task))
             + "\nPer demo: median [quartiles], range (steps and path over successful demos; counts over all demos).\n\n"
             + demo_distributions_markdown(rows))
